@@ -1,0 +1,237 @@
+"""Resampling schemes on log-weights.
+
+Overview
+--------
+Every scheme has the signature ``(key, log_weights, num_samples) -> indices``:
+it takes *unnormalised* log-weights ``[N]`` and returns ``num_samples`` int32
+ancestor indices in ``[0, N)``. All four are unbiased: the expected number of
+offspring of particle ``i`` is ``M·w̄_i`` (Douc & Cappé 2005).
+
+* ``multinomial`` — i.i.d. draws from the categorical distribution.
+* ``systematic`` — one uniform ``u``, points ``(u + m)/M``; this is the
+  low-variance sampler of [A] App. B (O(M) there, O(M log N) here through a
+  vectorised ``searchsorted``, which is what parallel hardware wants).
+* ``stratified`` — one uniform per stratum ``[(m)/M, (m+1)/M)``.
+* ``residual`` — ``⌊M w̄_i⌋`` deterministic copies, the remainder drawn
+  multinomially from the residual weights.
+
+Numerical guards (float32): the cumulative sum is normalised by its last
+entry, queries are clamped below 1, and indices are clipped to ``[0, N)``, so
+extreme weights (one particle holding all the mass, entries of ``-inf``) never
+yield an out-of-range index. A degenerate set (all ``-inf``/NaN) is resampled
+uniformly.
+
+:func:`conditional_resample` applies a scheme only when the ESS falls below a
+fraction of N, decided independently for every run when vmapped;
+:func:`gaussian_refresh` is the Gaussian approximation of [A] §4.3.3.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxnav.core import weights as _w
+
+__all__ = [
+    "Resampler",
+    "multinomial",
+    "systematic",
+    "stratified",
+    "residual",
+    "inverse_cdf",
+    "SCHEMES",
+    "get_resampler",
+    "ResampleResult",
+    "conditional_resample",
+    "gaussian_refresh",
+]
+
+Resampler = Callable[[jax.Array, jax.Array, int], jax.Array]
+
+
+def _probabilities(log_weights: jax.Array) -> jax.Array:
+    return jnp.exp(_w.normalize(log_weights).log_weights)
+
+
+def inverse_cdf(sorted_uniforms: jax.Array, weights: jax.Array) -> jax.Array:
+    """Indices ``A_m = min{j : u_m < Σ_{i≤j} w_i}`` for sorted uniforms in ``[0, 1)``.
+
+    ``weights`` are non-negative probabilities ``[N]`` (they need not sum to 1
+    exactly: the cumulative sum is rescaled by its last entry). This is the
+    inner loop of [A] App. B's low-variance sampler written as one
+    ``searchsorted``; it selects the same indices as ``filterpy``'s
+    ``systematic_resample`` for the same uniform draw.
+    """
+    cdf = jnp.cumsum(weights)
+    cdf = cdf / cdf[-1]
+    # Guard float32 round-off: no query may reach the total mass.
+    u = jnp.minimum(sorted_uniforms, jnp.nextafter(jnp.asarray(1.0, cdf.dtype), 0.0))
+    idx = jnp.searchsorted(cdf, u, side="right", method="scan_unrolled")
+    return jnp.clip(idx, 0, weights.shape[0] - 1).astype(jnp.int32)
+
+
+def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Multinomial resampling: ``num_samples`` i.i.d. categorical draws."""
+    lw = _w.normalize(log_weights).log_weights
+    return jax.random.categorical(key, lw, shape=(num_samples,)).astype(jnp.int32)
+
+
+def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Systematic (low-variance) resampling, [A] App. B: points ``(u + m)/M``, one ``u``."""
+    dtype = jnp.result_type(log_weights.dtype, jnp.float32)
+    u = jax.random.uniform(key, (), dtype)
+    points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
+    return inverse_cdf(points, _probabilities(log_weights))
+
+
+def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Stratified resampling: one uniform in each stratum ``[m/M, (m+1)/M)``."""
+    dtype = jnp.result_type(log_weights.dtype, jnp.float32)
+    u = jax.random.uniform(key, (num_samples,), dtype)
+    points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
+    return inverse_cdf(points, _probabilities(log_weights))
+
+
+def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Residual resampling: ``⌊M w̄_i⌋`` copies, the rest multinomial on the residuals.
+
+    Shapes are static: the deterministic part fills the first
+    ``Σ⌊M w̄_i⌋`` slots (found with an inverse CDF on the integer counts), the
+    remaining slots take multinomial draws from ``M w̄_i − ⌊M w̄_i⌋``.
+    """
+    p = _probabilities(log_weights)
+    n = p.shape[0]
+    counts = jnp.floor(num_samples * p)
+    counts_int = counts.astype(jnp.int32)
+    n_det = jnp.sum(counts_int)
+    # Deterministic copies: slot m belongs to the particle whose cumulative count exceeds m.
+    cum = jnp.cumsum(counts_int)
+    slots = jnp.arange(num_samples, dtype=jnp.int32)
+    det_idx = jnp.clip(jnp.searchsorted(cum, slots, side="right"), 0, n - 1)
+    resid = num_samples * p - counts
+    resid_total = jnp.sum(resid)
+    log_resid = jnp.where(resid > 0, jnp.log(jnp.where(resid > 0, resid, 1.0)), -jnp.inf)
+    # When nothing is left over every slot is deterministic; any finite logits do.
+    log_resid = jnp.where(resid_total > 0, log_resid, jnp.zeros_like(log_resid))
+    rand_idx = jax.random.categorical(key, log_resid, shape=(num_samples,))
+    return jnp.where(slots < n_det, det_idx, rand_idx).astype(jnp.int32)
+
+
+SCHEMES: dict[str, Resampler] = {
+    "multinomial": multinomial,
+    "systematic": systematic,
+    "stratified": stratified,
+    "residual": residual,
+}
+
+
+def get_resampler(name: str) -> Resampler:
+    """The resampling scheme called ``name`` (one of :data:`SCHEMES`)."""
+    try:
+        return SCHEMES[name]
+    except KeyError:
+        raise ValueError(
+            f"resampling scheme {name!r} is unknown; choose one of {sorted(SCHEMES)}"
+        ) from None
+
+
+class ResampleResult(NamedTuple):
+    """Output of :func:`conditional_resample`.
+
+    Attributes:
+        particles: ``[N, ...]`` the (possibly) resampled particles.
+        log_weights: ``[N]`` normalised log-weights (uniform after resampling).
+        ancestors: ``[N]`` int32 ancestor indices (``arange(N)`` when not resampled).
+        resampled: scalar bool.
+    """
+
+    particles: jax.Array
+    log_weights: jax.Array
+    ancestors: jax.Array
+    resampled: jax.Array
+
+
+def gaussian_refresh(
+    key: jax.Array,
+    particles: jax.Array,
+    log_weights: jax.Array | None = None,
+    angle_dims: tuple[int, ...] = (),
+    jitter: float = 1e-9,
+) -> jax.Array:
+    """Redraw ``particles [N, D]`` from the Gaussian fitted to them, [A] §4.3.3.
+
+    For a static target, resampled duplicates stay duplicates forever; [A]
+    draws the new set from ``N(μ, Σ)`` of the resampled set instead (Alg. 6
+    lines 21–22). ``angle_dims`` are averaged on the circle and wrapped back
+    to ``[-π, π)``. ``jitter`` (in the particles' squared units) is added to
+    the diagonal so that a collapsed cloud still has a Cholesky factor.
+    """
+    n, d = particles.shape
+    if log_weights is None:
+        log_weights = jnp.zeros((n,), particles.dtype)
+    mean = _w.particle_mean(particles, log_weights, angle_dims)
+    cov = _w.weighted_cov(particles, log_weights, angle_dims, mean)
+    cov = 0.5 * (cov + cov.T) + jitter * jnp.eye(d, dtype=cov.dtype)
+    chol = jnp.linalg.cholesky(cov)
+    # A failed factorisation (NaN) falls back to the diagonal standard deviations.
+    diag_chol = jnp.diag(jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0)))
+    chol = jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
+    eps = jax.random.normal(key, (n, d), particles.dtype)
+    new = mean + eps @ chol.T
+    if angle_dims:
+        mask = jnp.zeros((d,), bool).at[jnp.asarray(angle_dims)].set(True)
+        new = jnp.where(mask, _w.wrap_angle(new), new)
+    return new
+
+
+def conditional_resample(
+    key: jax.Array,
+    particles: jax.Array,
+    log_weights: jax.Array,
+    threshold: float | jax.Array = 0.5,
+    scheme: str | Resampler = "systematic",
+    refresh: bool = False,
+    angle_dims: tuple[int, ...] = (),
+) -> ResampleResult:
+    """Resample when ``ESS < threshold · N``; otherwise pass the particles through.
+
+    Args:
+        key: PRNG key.
+        particles: pytree whose leaves have leading axis ``N``.
+        log_weights: ``[N]`` log-weights (normalised or not).
+        threshold: fraction of ``N`` in ``(0, 1]``; ``1.0`` resamples every step
+            (ESS ≤ N always, and a uniform set is resampled too). [A] §4.3.3
+            advises a low value for static targets refreshed by a Gaussian.
+        scheme: a name in :data:`SCHEMES` or a resampler function.
+        refresh: after resampling, redraw from the Gaussian fitted to the
+            resampled set ([A] §4.3.3). Only for array particles ``[N, D]``.
+        angle_dims: components averaged on the circle by the refresh.
+
+    The decision is a ``lax.cond``; under ``vmap`` over runs it becomes a
+    per-run select, so every run decides for itself.
+    """
+    resampler = get_resampler(scheme) if isinstance(scheme, str) else scheme
+    norm = _w.normalize(log_weights)
+    lw = norm.log_weights
+    n = lw.shape[0]
+    k_res, k_ref = jax.random.split(key)
+    ess_value = _w.ess(lw)
+    # `<=` at threshold 1 would be wrong for a perfectly uniform set only by
+    # round-off; resample-always is requested explicitly with threshold >= 1.
+    do_resample = (ess_value < threshold * n) | (jnp.asarray(threshold) >= 1.0)
+
+    def _resample(_):
+        idx = resampler(k_res, lw, n)
+        new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), particles)
+        if refresh:
+            new = gaussian_refresh(k_ref, new, None, angle_dims)
+        return new, jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype))), idx
+
+    def _keep(_):
+        return particles, lw, jnp.arange(n, dtype=jnp.int32)
+
+    new_particles, new_lw, ancestors = jax.lax.cond(do_resample, _resample, _keep, None)
+    return ResampleResult(new_particles, new_lw, ancestors, do_resample)

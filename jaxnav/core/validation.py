@@ -1,0 +1,86 @@
+"""Host-side argument checks, run before anything is traced.
+
+Each check raises ``ValueError`` naming the argument. Checks on *values* are
+skipped for tracers (inside a user's ``jit``/``vmap`` the values are unknown);
+checks on *shapes* always run, since shapes are static.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import numpy as np
+
+__all__ = [
+    "is_concrete",
+    "check_positive_int",
+    "check_fraction",
+    "check_shape",
+    "check_positive",
+    "check_nonnegative",
+    "check_finite",
+    "check_choice",
+]
+
+
+def is_concrete(x: Any) -> bool:
+    """True if ``x`` holds known values (not a tracer)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    """``value`` must be an integer ≥ 1."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def check_fraction(name: str, value: Any) -> float:
+    """``value`` must be a real number in (0, 1]."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in (0, 1], got {value!r}") from None
+    if not (0.0 < v <= 1.0):
+        raise ValueError(f"{name} must be in (0, 1], got {v}")
+    return v
+
+
+def check_shape(name: str, x: Any, shape: tuple[int | None, ...]) -> None:
+    """``x`` must have ``shape``; ``None`` entries match any size."""
+    actual = np.shape(x)
+    if len(actual) != len(shape) or any(s is not None and s != a for s, a in zip(shape, actual)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {tuple(actual)}")
+
+
+def _values(x: Any) -> np.ndarray | None:
+    return np.asarray(x) if is_concrete(x) else None
+
+
+def check_finite(name: str, x: Any) -> None:
+    """No NaN or infinity in ``x`` (skipped for tracers)."""
+    v = _values(x)
+    if v is not None and not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+
+
+def check_positive(name: str, x: Any) -> None:
+    """Every entry of ``x`` must be finite and > 0 (skipped for tracers)."""
+    v = _values(x)
+    if v is not None and not (np.all(np.isfinite(v)) and np.all(v > 0)):
+        raise ValueError(f"{name} must be finite and strictly positive, got {v}")
+
+
+def check_nonnegative(name: str, x: Any) -> None:
+    """Every entry of ``x`` must be finite and ≥ 0 (skipped for tracers)."""
+    v = _values(x)
+    if v is not None and not (np.all(np.isfinite(v)) and np.all(v >= 0)):
+        raise ValueError(f"{name} must be finite and non-negative, got {v}")
+
+
+def check_choice(name: str, value: Any, choices: Any) -> None:
+    """``value`` must be one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {sorted(choices)}, got {value!r}")

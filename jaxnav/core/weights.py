@@ -1,0 +1,183 @@
+"""Log-weight utilities for particle filters.
+
+Overview
+--------
+Every weight in jaxnav lives on the log scale, from the likelihood to the
+resampler ([SPEC] §1). [A] Alg. 6 multiplies raw likelihoods over time, which
+underflows within tens of steps in float32; here a particle's unnormalised
+log-weight is a sum of log-likelihoods and is normalised with ``logsumexp``.
+
+Conventions
+-----------
+* ``log_weights`` has shape ``[N]``; the normalised form satisfies
+  ``logsumexp(log_weights) == 0``.
+* A particle that must never be chosen has log-weight ``-inf``; NaN is treated
+  as ``-inf`` (see :func:`sanitize_log_weights`). When *every* entry is
+  ``-inf`` or NaN the set is *degenerate*: the weights are reset to uniform and
+  the caller records the event in its step ``info``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import logsumexp
+
+__all__ = [
+    "Normalized",
+    "sanitize_log_weights",
+    "normalize",
+    "log_ess",
+    "ess",
+    "log_marginal_increment",
+    "weighted_mean",
+    "weighted_cov",
+    "circular_mean",
+    "wrap_angle",
+    "particle_mean",
+]
+
+
+class Normalized(NamedTuple):
+    """Result of :func:`normalize`.
+
+    Attributes:
+        log_weights: ``[N]`` normalised log-weights (``logsumexp == 0``).
+        log_norm: scalar ``logsumexp`` of the sanitised input; ``-inf`` when
+            degenerate.
+        degenerate: scalar bool, True when every input entry was ``-inf``/NaN
+            and the weights were reset to uniform.
+    """
+
+    log_weights: jax.Array
+    log_norm: jax.Array
+    degenerate: jax.Array
+
+
+def sanitize_log_weights(log_weights: jax.Array) -> jax.Array:
+    """Replace NaN and ``+inf`` log-weights by ``-inf``.
+
+    A NaN likelihood means "this particle cannot explain the data", so it gets
+    zero weight rather than poisoning the whole set; ``+inf`` is no density a
+    proper model can return, so it is treated the same way.
+    """
+    bad = jnp.isnan(log_weights) | (log_weights == jnp.inf)
+    return jnp.where(bad, -jnp.inf, log_weights)
+
+
+def normalize(log_weights: jax.Array) -> Normalized:
+    """Normalise log-weights with ``logsumexp``, guarding degenerate sets.
+
+    ``w̄_i = exp(ℓ_i − logsumexp(ℓ))``. If every ``ℓ_i`` is ``-inf`` or NaN the
+    set is reset to uniform (``-log N`` each) and ``degenerate`` is True; the
+    result never contains NaN.
+    """
+    lw = sanitize_log_weights(log_weights)
+    log_norm = logsumexp(lw)
+    degenerate = ~jnp.isfinite(log_norm)
+    n = lw.shape[-1]
+    uniform = jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype)))
+    safe_norm = jnp.where(degenerate, 0.0, log_norm)
+    normalized = jnp.where(degenerate, uniform, lw - safe_norm)
+    return Normalized(normalized, jnp.where(degenerate, -jnp.inf, log_norm), degenerate)
+
+
+def log_ess(log_weights: jax.Array) -> jax.Array:
+    """Log effective sample size, ``log ESS = 2·lse(ℓ) − lse(2ℓ)``.
+
+    ESS = 1 / Σ w̄² ([A] App. B). Works on unnormalised log-weights; a set
+    with a single finite entry has ESS 1, a uniform set has ESS N. A fully
+    degenerate set returns ``-inf`` (ESS 0), never NaN.
+    """
+    lw = sanitize_log_weights(log_weights)
+    num = 2.0 * logsumexp(lw)
+    den = logsumexp(2.0 * lw)
+    finite = jnp.isfinite(den)
+    return jnp.where(finite, num - jnp.where(finite, den, 0.0), -jnp.inf)
+
+
+def ess(log_weights: jax.Array) -> jax.Array:
+    """Effective sample size ``1 / Σ w̄²`` ([A] App. B), in ``[1, N]`` (0 if degenerate)."""
+    return jnp.exp(log_ess(log_weights))
+
+
+def log_marginal_increment(prev_log_weights: jax.Array, log_likelihoods: jax.Array) -> jax.Array:
+    """Log of the incremental marginal likelihood ``p(z_t | z_{1:t-1})``.
+
+    ``log Σ_i w̄_{t-1,i} · p(z_t | x_t^i)`` with ``w̄_{t-1}`` the *normalised*
+    weights carried into the step. Using the previous weights (and not a plain
+    mean of the likelihoods) keeps the estimate unbiased when resampling is
+    conditional on the ESS: after a step without resampling the weights are not
+    uniform.
+    """
+    prev = normalize(prev_log_weights).log_weights
+    return logsumexp(prev + sanitize_log_weights(log_likelihoods))
+
+
+def _weights(log_weights: jax.Array) -> jax.Array:
+    return jnp.exp(normalize(log_weights).log_weights)
+
+
+def weighted_mean(particles: jax.Array, log_weights: jax.Array) -> jax.Array:
+    """Weighted mean ``Σ w̄_i x_i`` of ``particles [N, D]`` (Euclidean components)."""
+    w = _weights(log_weights)
+    return jnp.einsum("n,nd->d", w, particles)
+
+
+def wrap_angle(angle: jax.Array) -> jax.Array:
+    """Wrap angles to ``[-π, π)`` (rad)."""
+    return (angle + jnp.pi) % (2.0 * jnp.pi) - jnp.pi
+
+
+def circular_mean(angles: jax.Array, log_weights: jax.Array | None = None) -> jax.Array:
+    """Weighted circular mean ``atan2(Σ w̄ sin a, Σ w̄ cos a)`` of ``angles [N, ...]`` (rad)."""
+    if log_weights is None:
+        w = jnp.full(angles.shape[:1], 1.0 / angles.shape[0], angles.dtype)
+    else:
+        w = _weights(log_weights)
+    w = w.reshape(w.shape + (1,) * (angles.ndim - 1))
+    return jnp.arctan2(jnp.sum(w * jnp.sin(angles), 0), jnp.sum(w * jnp.cos(angles), 0))
+
+
+def _angle_mask(dim: int, angle_dims: tuple[int, ...]) -> jax.Array:
+    mask = [False] * dim
+    for d in angle_dims:
+        mask[d] = True
+    return jnp.asarray(mask)
+
+
+def particle_mean(
+    particles: jax.Array, log_weights: jax.Array, angle_dims: tuple[int, ...] = ()
+) -> jax.Array:
+    """Weighted mean of ``particles [N, D]`` with the ``angle_dims`` averaged on the circle.
+
+    For a pose ``(x, y, θ)`` use ``angle_dims=(2,)``.
+    """
+    mean = weighted_mean(particles, log_weights)
+    if not angle_dims:
+        return mean
+    circ = circular_mean(particles, log_weights)
+    return jnp.where(_angle_mask(particles.shape[-1], angle_dims), circ, mean)
+
+
+def weighted_cov(
+    particles: jax.Array,
+    log_weights: jax.Array,
+    angle_dims: tuple[int, ...] = (),
+    mean: jax.Array | None = None,
+) -> jax.Array:
+    """Weighted covariance ``Σ w̄_i (x_i − μ)(x_i − μ)ᵀ`` of ``particles [N, D]``.
+
+    Residuals of ``angle_dims`` are wrapped to ``[-π, π)`` around the circular
+    mean, so a cloud straddling ±π gets a small variance, not ~π².
+    This is the plug-in (biased) estimator, the one a Gaussian refresh needs.
+    """
+    if mean is None:
+        mean = particle_mean(particles, log_weights, angle_dims)
+    resid = particles - mean
+    if angle_dims:
+        resid = jnp.where(_angle_mask(particles.shape[-1], angle_dims), wrap_angle(resid), resid)
+    w = _weights(log_weights)
+    return jnp.einsum("n,nd,ne->de", w, resid, resid)

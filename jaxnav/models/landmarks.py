@@ -1,0 +1,145 @@
+"""Range-bearing observations of point landmarks.
+
+Overview
+--------
+A robot at pose ``x = (x, y, θ)`` observes landmark ``m = (m_x, m_y)`` as
+
+    r = √((m_x − x)² + (m_y − y)²),   φ = atan2(m_y − y, m_x − x) − θ
+
+(Thrun et al. eq. 6.40; [A] §2.1, the sensor of Algs. 1, 3, 4, 5), with
+independent Gaussian noise of standard deviations ``(σ_r, σ_φ)`` in metres and
+radians. The bearing residual is wrapped to ``[-π, π)`` before it is scored.
+
+Observations of one step are a fixed-size :class:`RangeBearingObs` of ``K``
+slots — landmark id, measurement, validity mask — so the number of landmarks
+seen never changes an array shape. A slot whose mask is False, or whose id
+is outside the map, contributes nothing (log-likelihood 0) and is counted by
+:func:`lookup`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxnav.core.validation import check_positive, check_shape
+from jaxnav.core.weights import wrap_angle
+
+__all__ = [
+    "RangeBearingNoise",
+    "RangeBearingObs",
+    "predict",
+    "inverse",
+    "lookup",
+    "log_likelihood",
+    "validate_noise",
+    "validate_observations",
+]
+
+
+class RangeBearingNoise(NamedTuple):
+    """Measurement noise.
+
+    Attributes:
+        sd: ``[2]`` standard deviations ``(σ_r [m], σ_φ [rad])``.
+    """
+
+    sd: jax.Array
+
+
+class RangeBearingObs(NamedTuple):
+    """One step's observations in ``K`` fixed slots (add a leading time axis for a sequence).
+
+    Attributes:
+        ids: ``[K]`` int32 landmark index into the map.
+        z: ``[K, 2]`` measured ``(range [m], bearing [rad])``.
+        mask: ``[K]`` bool, True where the slot holds a real observation.
+    """
+
+    ids: jax.Array
+    z: jax.Array
+    mask: jax.Array
+
+
+def predict(pose: jax.Array, landmark: jax.Array) -> jax.Array:
+    """Expected ``(range, bearing)`` of ``landmark [..., 2]`` from ``pose [..., 3]`` (broadcasting)."""
+    dx = landmark[..., 0] - pose[..., 0]
+    dy = landmark[..., 1] - pose[..., 1]
+    r = jnp.sqrt(dx * dx + dy * dy)
+    b = wrap_angle(jnp.arctan2(dy, dx) - pose[..., 2])
+    return jnp.stack([r, b], axis=-1)
+
+
+def inverse(pose: jax.Array, z: jax.Array) -> jax.Array:
+    """Landmark position ``[..., 2]`` that would produce measurement ``z`` from ``pose``."""
+    h = pose[..., 2] + z[..., 1]
+    return jnp.stack([pose[..., 0] + z[..., 0] * jnp.cos(h), pose[..., 1] + z[..., 0] * jnp.sin(h)], axis=-1)
+
+
+def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Landmark positions of the observed ids.
+
+    Returns:
+        ``(positions [K, 2], valid [K], num_ignored)`` — ``valid`` is the mask
+        restricted to ids inside ``[0, M)``; ``num_ignored`` counts masked-in
+        slots whose id was outside the map (they are dropped, never read out
+        of bounds).
+    """
+    m = landmark_map.shape[0]
+    in_map = (obs.ids >= 0) & (obs.ids < m)
+    valid = obs.mask & in_map
+    positions = jnp.take(landmark_map, jnp.clip(obs.ids, 0, m - 1), axis=0)
+    return positions, valid, jnp.sum(obs.mask & ~in_map).astype(jnp.int32)
+
+
+def log_likelihood(
+    poses: jax.Array,
+    landmark_positions: jax.Array,
+    z: jax.Array,
+    valid: jax.Array,
+    params: RangeBearingNoise,
+) -> jax.Array:
+    """``Σ_k log N(z_k; h(x, m_k), diag(σ²))`` over valid slots, for ``poses [..., 3]``.
+
+    Args:
+        poses: ``[..., 3]`` (e.g. ``[N, 3]`` particles).
+        landmark_positions: ``[K, 2]``.
+        z: ``[K, 2]`` measurements; entries of invalid slots are never read
+            (NaN there is harmless, gradients included).
+        valid: ``[K]`` bool.
+        params: noise standard deviations.
+
+    Returns:
+        ``[...]`` log-likelihoods (normalised densities, so that a particle
+        filter's marginal likelihood is a proper density).
+    """
+    z_safe = jnp.where(valid[:, None], z, 0.0)
+    pred = predict(poses[..., None, :], landmark_positions)
+    resid_r = z_safe[:, 0] - pred[..., 0]
+    resid_b = wrap_angle(z_safe[:, 1] - pred[..., 1])
+    sd = params.sd
+    log_norm = -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi)
+    ll = log_norm - 0.5 * ((resid_r / sd[0]) ** 2 + (resid_b / sd[1]) ** 2)
+    return jnp.sum(jnp.where(valid, ll, 0.0), axis=-1)
+
+
+def validate_noise(params: RangeBearingNoise) -> None:
+    """Host-side check: ``sd`` has shape ``[2]`` and is strictly positive."""
+    check_shape("sensor noise sd", params.sd, (2,))
+    check_positive("sensor noise sd", params.sd)
+
+
+def validate_observations(obs: RangeBearingObs, time_axis: bool) -> None:
+    """Host-side check of the observation arrays' shapes (``[T, K]`` if ``time_axis``)."""
+    lead = (None, None) if time_axis else (None,)
+    check_shape("observations.ids", obs.ids, lead)
+    check_shape("observations.mask", obs.mask, lead)
+    check_shape("observations.z", obs.z, lead + (2,))
+    if jnp.shape(obs.ids) != jnp.shape(obs.mask) or jnp.shape(obs.z)[:-1] != jnp.shape(obs.ids):
+        raise ValueError(
+            "observations.ids, .mask and .z must agree in their leading shape, got "
+            f"{jnp.shape(obs.ids)}, {jnp.shape(obs.mask)}, {jnp.shape(obs.z)}"
+        )

@@ -1,0 +1,293 @@
+"""Motion models: velocity (unicycle), odometry and omnidirectional.
+
+Overview
+--------
+Each model offers
+
+* ``mean(pose, control, params) -> pose`` — the deterministic motion
+  ``g(u_t, x_{t-1})``; smooth, so the EKF of the classical issue linearises it
+  with ``jax.jacfwd`` instead of hand-written Jacobians;
+* ``sample(key, poses, control, params) -> poses`` — one noisy draw per pose,
+  vectorised over any leading axes of ``poses [..., 3]`` (one call moves all
+  particles; the noise is drawn as one array, not per-particle keys).
+
+Poses are ``(x, y, θ)`` in metres and radians, θ wrapped to ``[-π, π)``.
+Controls carry their own time step, so logs with irregular Δt need no extra
+argument:
+
+==================  ==========================================  ====================
+model               control ``u``                               reference
+==================  ==========================================  ====================
+``velocity``        ``(v [m/s], ω [rad/s], Δt [s])``            Thrun et al. Tab. 5.3
+``odometry``        ``(x̄, ȳ, θ̄, x̄', ȳ', θ̄')`` odometry poses   Thrun et al. Tab. 5.6
+``omni``            ``(v_x, v_y, ω, Δt)``, world frame           [W] eq. 3.6
+``omni_body``       ``(v_x, v_y, ω, Δt)``, robot frame            [W] eq. 3.6, rotated
+==================  ==========================================  ====================
+
+Noise parameters are NamedTuple pytrees (differentiable, vmappable). The
+``alphas`` follow Thrun et al.: each is a coefficient of a *variance*
+(``Var[v̂ − v] = α₁v² + α₂ω²``). ``pose_sd`` adds independent Gaussian noise
+to ``(x, y, θ)`` after the move (m, m, rad per step), which is how the
+benchmark workload W2 states its noise.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxnav.core.validation import check_nonnegative, check_shape
+from jaxnav.core.weights import wrap_angle
+
+__all__ = [
+    "VelocityNoise",
+    "OdometryNoise",
+    "OmniNoise",
+    "MotionModel",
+    "velocity_mean",
+    "velocity_sample",
+    "odometry_mean",
+    "odometry_sample",
+    "odometry_control",
+    "omni_mean",
+    "omni_sample",
+    "omni_body_mean",
+    "omni_body_sample",
+    "MODELS",
+    "get_motion_model",
+]
+
+
+class VelocityNoise(NamedTuple):
+    """Noise of the velocity model.
+
+    Attributes:
+        alphas: ``[6]`` Thrun's α₁…α₆ (variance coefficients, dimensionless
+            as written in Tab. 5.3: ``Var v̂ = α₁v² + α₂ω²``, ``Var ω̂ = α₃v² + α₄ω²``,
+            ``Var γ̂ = α₅v² + α₆ω²``).
+        pose_sd: ``[3]`` additive pose noise per step (m, m, rad).
+    """
+
+    alphas: jax.Array
+    pose_sd: jax.Array
+
+
+class OdometryNoise(NamedTuple):
+    """Noise of the odometry model.
+
+    Attributes:
+        alphas: ``[4]`` Thrun's α₁…α₄ (Tab. 5.6): rotation noise from rotation
+            (α₁) and translation (α₂); translation noise from translation (α₃)
+            and rotation (α₄). Variance coefficients.
+        pose_sd: ``[3]`` additive pose noise per step (m, m, rad).
+    """
+
+    alphas: jax.Array
+    pose_sd: jax.Array
+
+
+class OmniNoise(NamedTuple):
+    """Noise of the omnidirectional model, [W] eq. 3.6: ``ε ~ N(0, σ)``.
+
+    Attributes:
+        sd: ``[3]`` standard deviation σ of the velocity noise ε
+            (m/s, m/s, rad/s); the pose moves by ``ε·Δt``.
+    """
+
+    sd: jax.Array
+
+
+# ---------------------------------------------------------------------------
+# velocity (unicycle) model
+
+
+def _arc(pose: jax.Array, v: jax.Array, w: jax.Array, gamma: jax.Array, dt: jax.Array) -> jax.Array:
+    """Exact circular-arc motion, Thrun et al. eq. 5.9, in a form smooth at ω = 0.
+
+    ``−sin θ + sin(θ + a) = 2 cos(θ + a/2) sin(a/2)`` with ``a = ωΔt`` gives
+    ``Δx = vΔt·cos(θ + a/2)·sinc(a/2)``, which has no division by ω and so no
+    special case (and finite gradients) when the robot drives straight.
+    """
+    x, y, th = pose[..., 0], pose[..., 1], pose[..., 2]
+    a = w * dt
+    chord = v * dt * jnp.sinc(a / (2.0 * jnp.pi))  # jnp.sinc(z) = sin(πz)/(πz)
+    mid = th + 0.5 * a
+    return jnp.stack(
+        [x + chord * jnp.cos(mid), y + chord * jnp.sin(mid), wrap_angle(th + a + gamma * dt)],
+        axis=-1,
+    )
+
+
+def velocity_mean(pose: jax.Array, control: jax.Array, params: VelocityNoise | None = None) -> jax.Array:
+    """Noise-free velocity motion ``g(u, x)`` (Thrun et al. eq. 5.9); ``u = (v, ω, Δt)``."""
+    del params
+    v, w, dt = control[..., 0], control[..., 1], control[..., 2]
+    return _arc(pose, v, w, jnp.zeros_like(w), dt)
+
+
+def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: VelocityNoise) -> jax.Array:
+    """``sample_motion_model_velocity`` (Thrun et al. Tab. 5.3) for all ``poses [..., 3]``."""
+    v, w, dt = control[..., 0], control[..., 1], control[..., 2]
+    a = params.alphas
+    k_ctrl, k_pose = jax.random.split(key)
+    eps = jax.random.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
+    v2, w2 = v * v, w * w
+    v_hat = v + eps[..., 0] * jnp.sqrt(a[0] * v2 + a[1] * w2)
+    w_hat = w + eps[..., 1] * jnp.sqrt(a[2] * v2 + a[3] * w2)
+    g_hat = eps[..., 2] * jnp.sqrt(a[4] * v2 + a[5] * w2)
+    moved = _arc(poses, v_hat, w_hat, g_hat, dt)
+    return _add_pose_noise(k_pose, moved, params.pose_sd)
+
+
+def _add_pose_noise(key: jax.Array, poses: jax.Array, pose_sd: jax.Array) -> jax.Array:
+    noisy = poses + jax.random.normal(key, poses.shape, poses.dtype) * pose_sd
+    return noisy.at[..., 2].set(wrap_angle(noisy[..., 2]))
+
+
+# ---------------------------------------------------------------------------
+# odometry model
+
+_EPS_TRANS = 1e-9  # m; below this the heading of the translation is undefined
+
+
+def _odometry_deltas(control: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(δ_rot1, δ_trans, δ_rot2)`` of Thrun et al. Tab. 5.6 from two odometry poses.
+
+    For a pure rotation (δ_trans ≈ 0) the first rotation is set to 0 and the
+    whole turn goes to δ_rot2, with gradients kept finite.
+    """
+    dx = control[..., 3] - control[..., 0]
+    dy = control[..., 4] - control[..., 1]
+    d2 = dx * dx + dy * dy
+    moving = d2 > _EPS_TRANS**2
+    safe_dx = jnp.where(moving, dx, 1.0)
+    safe_dy = jnp.where(moving, dy, 0.0)
+    trans = jnp.where(moving, jnp.sqrt(jnp.where(moving, d2, 1.0)), 0.0)
+    rot1 = jnp.where(moving, wrap_angle(jnp.arctan2(safe_dy, safe_dx) - control[..., 2]), 0.0)
+    rot2 = wrap_angle(control[..., 5] - control[..., 2] - rot1)
+    return rot1, trans, rot2
+
+
+def _apply_odometry(pose: jax.Array, rot1: jax.Array, trans: jax.Array, rot2: jax.Array) -> jax.Array:
+    x, y, th = pose[..., 0], pose[..., 1], pose[..., 2]
+    h = th + rot1
+    return jnp.stack([x + trans * jnp.cos(h), y + trans * jnp.sin(h), wrap_angle(h + rot2)], axis=-1)
+
+
+def odometry_mean(pose: jax.Array, control: jax.Array, params: OdometryNoise | None = None) -> jax.Array:
+    """Noise-free odometry motion: apply the relative motion between two odometry poses."""
+    del params
+    return _apply_odometry(pose, *_odometry_deltas(control))
+
+
+def odometry_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OdometryNoise) -> jax.Array:
+    """``sample_motion_model_odometry`` (Thrun et al. Tab. 5.6) for all ``poses [..., 3]``."""
+    rot1, trans, rot2 = _odometry_deltas(control)
+    a = params.alphas
+    k_ctrl, k_pose = jax.random.split(key)
+    eps = jax.random.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
+    r1, t2, r2 = rot1 * rot1, trans * trans, rot2 * rot2
+    rot1_hat = rot1 - eps[..., 0] * jnp.sqrt(a[0] * r1 + a[1] * t2)
+    trans_hat = trans - eps[..., 1] * jnp.sqrt(a[2] * t2 + a[3] * (r1 + r2))
+    rot2_hat = rot2 - eps[..., 2] * jnp.sqrt(a[0] * r2 + a[1] * t2)
+    moved = _apply_odometry(poses, rot1_hat, trans_hat, rot2_hat)
+    return _add_pose_noise(k_pose, moved, params.pose_sd)
+
+
+def odometry_control(previous_odometry_pose: jax.Array, odometry_pose: jax.Array) -> jax.Array:
+    """Pack two odometry readings into the ``odometry`` model's control ``[6]``."""
+    return jnp.concatenate([jnp.asarray(previous_odometry_pose), jnp.asarray(odometry_pose)], axis=-1)
+
+
+# ---------------------------------------------------------------------------
+# omnidirectional model, [W] eq. 3.6
+
+
+def omni_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None = None) -> jax.Array:
+    """[W] eq. 3.6 without noise: ``x_t = x_{t−1} + V·Δt`` with ``V = (v_x, v_y, ω)`` in the world frame."""
+    del params
+    dt = control[..., 3:4]
+    new = pose + control[..., :3] * dt
+    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+
+
+def omni_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
+    """[W] eq. 3.6: ``x_t = x_{t−1} + V·Δt + ε·Δt``, ``ε ~ N(0, σ)``, V in the world frame."""
+    dt = control[..., 3:4]
+    eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
+    new = poses + (control[..., :3] + eps) * dt
+    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+
+
+def _body_to_world(poses: jax.Array, v_body: jax.Array) -> jax.Array:
+    c, s = jnp.cos(poses[..., 2]), jnp.sin(poses[..., 2])
+    vx, vy = v_body[..., 0], v_body[..., 1]
+    return jnp.stack([c * vx - s * vy, s * vx + c * vy, v_body[..., 2] * jnp.ones_like(c)], axis=-1)
+
+
+def omni_body_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None = None) -> jax.Array:
+    """[W] eq. 3.6 with ``V`` measured in the robot frame (rotated by θ_{t−1}), no noise."""
+    del params
+    dt = control[..., 3:4]
+    new = pose + _body_to_world(pose, control[..., :3]) * dt
+    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+
+
+def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
+    """[W] eq. 3.6 with robot-frame ``V``: the noisy body velocity ``V + ε`` is rotated by θ_{t−1}."""
+    dt = control[..., 3:4]
+    eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
+    new = poses + _body_to_world(poses, control[..., :3] + eps) * dt
+    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+
+
+# ---------------------------------------------------------------------------
+# registry
+
+
+class MotionModel(NamedTuple):
+    """A motion model's functions and metadata (see the module docstring)."""
+
+    name: str
+    control_dim: int
+    mean: Callable[..., jax.Array]
+    sample: Callable[..., jax.Array]
+    noise_type: type
+    validate: Callable[[object], None]
+
+
+def _validate_velocity(params: VelocityNoise) -> None:
+    check_shape("motion noise alphas", params.alphas, (6,))
+    check_shape("motion noise pose_sd", params.pose_sd, (3,))
+    check_nonnegative("motion noise alphas", params.alphas)
+    check_nonnegative("motion noise pose_sd", params.pose_sd)
+
+
+def _validate_odometry(params: OdometryNoise) -> None:
+    check_shape("motion noise alphas", params.alphas, (4,))
+    check_shape("motion noise pose_sd", params.pose_sd, (3,))
+    check_nonnegative("motion noise alphas", params.alphas)
+    check_nonnegative("motion noise pose_sd", params.pose_sd)
+
+
+def _validate_omni(params: OmniNoise) -> None:
+    check_shape("motion noise sd", params.sd, (3,))
+    check_nonnegative("motion noise sd", params.sd)
+
+
+MODELS: dict[str, MotionModel] = {
+    "velocity": MotionModel("velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity),
+    "odometry": MotionModel("odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry),
+    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni),
+    "omni_body": MotionModel("omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni),
+}
+
+
+def get_motion_model(name: str) -> MotionModel:
+    """The motion model called ``name`` (one of :data:`MODELS`)."""
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ValueError(f"motion model {name!r} is unknown; choose one of {sorted(MODELS)}") from None

@@ -1,0 +1,3 @@
+"""World and hardware simulators."""
+
+from jaxnav.sim import landmark_world as landmark_world

@@ -1,0 +1,110 @@
+"""Motion models: noise-free means against closed forms, sampling statistics, gradients."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxnav.models import motion
+
+
+def test_velocity_mean_matches_thrun_arc():
+    """Thrun et al. eq. 5.9: x' = x − (v/ω) sin θ + (v/ω) sin(θ + ωΔt), etc."""
+    pose = jnp.asarray([1.0, 2.0, 0.3])
+    v, w, dt = 0.7, 0.4, 0.5
+    got = motion.velocity_mean(pose, jnp.asarray([v, w, dt]))
+    r = v / w
+    want = [
+        1.0 - r * math.sin(0.3) + r * math.sin(0.3 + w * dt),
+        2.0 + r * math.cos(0.3) - r * math.cos(0.3 + w * dt),
+        0.3 + w * dt,
+    ]
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+
+
+def test_velocity_mean_straight_line_and_finite_gradient_at_zero_turn():
+    pose = jnp.asarray([0.0, 0.0, math.pi / 2])
+    got = motion.velocity_mean(pose, jnp.asarray([2.0, 0.0, 0.5]))
+    np.testing.assert_allclose(got, [0.0, 1.0, math.pi / 2], atol=1e-6)
+    jac = jax.jacfwd(motion.velocity_mean, argnums=(0, 1))(pose, jnp.asarray([2.0, 0.0, 0.5]))
+    assert all(np.all(np.isfinite(j)) for j in jac)
+
+
+def test_odometry_mean_reproduces_the_odometry_displacement():
+    """Starting at the first odometry pose, the mean motion lands on the second."""
+    prev = jnp.asarray([1.0, -1.0, 0.4])
+    cur = jnp.asarray([1.5, -0.2, 1.3])
+    got = motion.odometry_mean(prev, motion.odometry_control(prev, cur))
+    np.testing.assert_allclose(got, cur, atol=1e-6)
+    # In another frame the same relative motion is applied.
+    start = jnp.asarray([0.0, 0.0, 0.0])
+    got2 = motion.odometry_mean(start, motion.odometry_control(prev, cur))
+    d = np.linalg.norm(np.asarray(cur[:2] - prev[:2]))
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(got2[:2])), d, rtol=1e-6)
+    np.testing.assert_allclose(got2[2], 0.9, atol=1e-6)
+
+
+def test_odometry_pure_rotation_has_finite_gradients():
+    prev = jnp.asarray([1.0, 1.0, 0.0])
+    cur = jnp.asarray([1.0, 1.0, 0.5])
+    ctrl = motion.odometry_control(prev, cur)
+    np.testing.assert_allclose(motion.odometry_mean(prev, ctrl), cur, atol=1e-6)
+    jac = jax.jacfwd(motion.odometry_mean, argnums=(0, 1))(prev, ctrl)
+    assert all(np.all(np.isfinite(j)) for j in jac)
+
+
+def test_omni_is_eq_3_6_in_world_frame_and_rotated_in_body_frame():
+    pose = jnp.asarray([1.0, 1.0, math.pi / 2])
+    u = jnp.asarray([0.2, 0.1, 0.3, 2.0])
+    np.testing.assert_allclose(motion.omni_mean(pose, u), [1.4, 1.2, math.pi / 2 + 0.6], atol=1e-6)
+    # Body frame: heading +90°, so forward (x_body) is world +y.
+    np.testing.assert_allclose(motion.omni_body_mean(pose, u), [1.0 - 0.2, 1.0 + 0.4, math.pi / 2 + 0.6], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(motion.MODELS))
+def test_sample_is_centred_on_mean_with_small_noise_and_vectorised(name):
+    model = motion.MODELS[name]
+    controls = {
+        "velocity": jnp.asarray([0.5, 0.2, 0.1]),
+        "odometry": jnp.asarray([0.0, 0.0, 0.0, 0.05, 0.01, 0.02]),
+        "omni": jnp.asarray([0.3, -0.1, 0.2, 0.1]),
+        "omni_body": jnp.asarray([0.3, -0.1, 0.2, 0.1]),
+    }
+    noise = {
+        "velocity": motion.VelocityNoise(jnp.full((6,), 0.01), jnp.asarray([0.01, 0.01, 0.005])),
+        "odometry": motion.OdometryNoise(jnp.full((4,), 0.01), jnp.asarray([0.01, 0.01, 0.005])),
+        "omni": motion.OmniNoise(jnp.asarray([0.1, 0.1, 0.05])),
+        "omni_body": motion.OmniNoise(jnp.asarray([0.1, 0.1, 0.05])),
+    }[name]
+    pose = jnp.asarray([1.0, 2.0, 0.5])
+    poses = jnp.tile(pose, (20000, 1))
+    out = jax.jit(model.sample)(jax.random.PRNGKey(0), poses, controls[name], noise)
+    assert out.shape == poses.shape
+    mean = model.mean(pose, controls[name], noise)
+    sd = np.std(np.asarray(out), axis=0)
+    assert np.all(sd > 0)
+    # The sample mean is within 5 standard errors of the noise-free motion
+    # (all noises here are small, so the nonlinear bias is far below that).
+    np.testing.assert_array_less(np.abs(np.mean(out, axis=0) - mean), 5 * sd / math.sqrt(20000) + 1e-4)
+
+
+def test_omni_sample_noise_scales_with_dt():
+    """[W] eq. 3.6: the noise enters as ε·Δt, so its sd is σ·Δt."""
+    sd = jnp.asarray([0.2, 0.1, 0.05])
+    poses = jnp.zeros((50000, 3))
+    out = motion.omni_sample(jax.random.PRNGKey(1), poses, jnp.asarray([0.0, 0.0, 0.0, 0.5]), motion.OmniNoise(sd))
+    np.testing.assert_allclose(np.std(np.asarray(out), axis=0), np.asarray(sd) * 0.5, rtol=0.03)
+
+
+def test_means_are_differentiable():
+    pose = jnp.asarray([0.5, -0.3, 0.2])
+    check_grads(lambda p: motion.velocity_mean(p, jnp.asarray([0.5, 0.3, 0.2])), (pose,), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
+    check_grads(lambda p: motion.omni_body_mean(p, jnp.asarray([0.5, 0.3, 0.2, 0.1])), (pose,), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
+
+
+def test_unknown_model_name():
+    with pytest.raises(ValueError, match="motion model 'teleport' is unknown"):
+        motion.get_motion_model("teleport")

@@ -75,13 +75,19 @@ def normalize(log_weights: jax.Array) -> Normalized:
     result never contains NaN.
     """
     lw = sanitize_log_weights(log_weights)
+    # Subtract the max *before* the normaliser: with |ℓ| large (e.g. -1e30 as a
+    # "masked" value) ``ℓ − logsumexp(ℓ)`` would lose the O(log N) term to
+    # round-off (N equal weights of -1e30 would each get weight 1).
+    top = jnp.max(lw)
+    shift = jax.lax.stop_gradient(jnp.where(jnp.isfinite(top), top, 0.0))
+    lw = lw - shift
     log_norm = logsumexp(lw)
     degenerate = ~jnp.isfinite(log_norm)
     n = lw.shape[-1]
     uniform = jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype)))
     safe_norm = jnp.where(degenerate, 0.0, log_norm)
     normalized = jnp.where(degenerate, uniform, lw - safe_norm)
-    return Normalized(normalized, jnp.where(degenerate, -jnp.inf, log_norm), degenerate)
+    return Normalized(normalized, jnp.where(degenerate, -jnp.inf, log_norm + shift), degenerate)
 
 
 def log_ess(log_weights: jax.Array) -> jax.Array:
@@ -91,11 +97,10 @@ def log_ess(log_weights: jax.Array) -> jax.Array:
     with a single finite entry has ESS 1, a uniform set has ESS N. A fully
     degenerate set returns ``-inf`` (ESS 0), never NaN.
     """
-    lw = sanitize_log_weights(log_weights)
-    num = 2.0 * logsumexp(lw)
-    den = logsumexp(2.0 * lw)
-    finite = jnp.isfinite(den)
-    return jnp.where(finite, num - jnp.where(finite, den, 0.0), -jnp.inf)
+    # On normalised weights log ESS = −lse(2ℓ̄); computing 2·lse(ℓ) − lse(2ℓ) on the
+    # raw input instead loses log N to round-off (or overflows) when |ℓ| is large.
+    norm = normalize(log_weights)
+    return jnp.where(norm.degenerate, -jnp.inf, -logsumexp(2.0 * norm.log_weights))
 
 
 def ess(log_weights: jax.Array) -> jax.Array:

@@ -9,8 +9,8 @@ offspring of particle ``i`` is ``M·w̄_i`` (Douc & Cappé 2005).
 
 * ``multinomial`` — i.i.d. draws from the categorical distribution.
 * ``systematic`` — one uniform ``u``, points ``(u + m)/M``; this is the
-  low-variance sampler of [A] App. B (O(M) there, O(M log N) here through a
-  vectorised ``searchsorted``, which is what parallel hardware wants).
+  low-variance sampler of [A] App. B, O(N + M) here as there, but with no
+  sequential loop (:func:`stratified_inverse_cdf`).
 * ``stratified`` — one uniform per stratum ``[(m)/M, (m+1)/M)``.
 * ``residual`` — ``⌊M w̄_i⌋`` deterministic copies, the remainder drawn
   multinomially from the residual weights.
@@ -33,6 +33,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxnav.core import fastmath
 from jaxnav.core import weights as _w
 
 __all__ = [
@@ -42,6 +43,7 @@ __all__ = [
     "stratified",
     "residual",
     "inverse_cdf",
+    "stratified_inverse_cdf",
     "SCHEMES",
     "get_resampler",
     "ResampleResult",
@@ -56,21 +58,66 @@ def _probabilities(log_weights: jax.Array) -> jax.Array:
     return jnp.exp(_w.normalize(log_weights).log_weights)
 
 
+def _cdf(weights: jax.Array) -> jax.Array:
+    cdf = fastmath.cumsum(weights)
+    # An explicit reciprocal: XLA may turn a division by a scalar into this
+    # product inside some fusions and not others, and the two resampling
+    # paths must see bit-identical CDFs.
+    return cdf * (1.0 / cdf[-1])
+
+
+def _clamp_below_one(u: jax.Array, dtype) -> jax.Array:
+    # Guard float32 round-off: no query may reach the total mass.
+    return jnp.minimum(u, jnp.nextafter(jnp.asarray(1.0, dtype), 0.0))
+
+
 def inverse_cdf(sorted_uniforms: jax.Array, weights: jax.Array) -> jax.Array:
     """Indices ``A_m = min{j : u_m < Σ_{i≤j} w_i}`` for sorted uniforms in ``[0, 1)``.
 
     ``weights`` are non-negative probabilities ``[N]`` (they need not sum to 1
     exactly: the cumulative sum is rescaled by its last entry). This is the
     inner loop of [A] App. B's low-variance sampler written as one
-    ``searchsorted``; it selects the same indices as ``filterpy``'s
-    ``systematic_resample`` for the same uniform draw.
+    ``searchsorted`` (O(M log N)); it selects the same indices as
+    ``filterpy``'s ``systematic_resample`` for the same uniform draw. The
+    systematic and stratified schemes use :func:`stratified_inverse_cdf`,
+    which returns the same indices in O(N + M).
     """
-    cdf = jnp.cumsum(weights)
-    cdf = cdf / cdf[-1]
-    # Guard float32 round-off: no query may reach the total mass.
-    u = jnp.minimum(sorted_uniforms, jnp.nextafter(jnp.asarray(1.0, cdf.dtype), 0.0))
-    idx = jnp.searchsorted(cdf, u, side="right", method="scan_unrolled")
+    cdf = _cdf(weights)
+    u = _clamp_below_one(sorted_uniforms, cdf.dtype)
+    idx = jnp.searchsorted(cdf, u, side="right")
     return jnp.clip(idx, 0, weights.shape[0] - 1).astype(jnp.int32)
+
+
+_SMALL = 2048 * 2048  # below this N·M the searchsorted path is faster on XLA:CPU (W1)
+
+
+def stratified_inverse_cdf(points: jax.Array, weights: jax.Array) -> jax.Array:
+    """:func:`inverse_cdf` for points with ``points[m] ∈ [m/M, (m+1)/M]``, in O(N + M).
+
+    Systematic and stratified points have one point per stratum, so the
+    number of points below ``cdf_i`` is ``⌊M·cdf_i⌋`` up to one or two (round-off
+    and the point inside the stratum). Counting ``c_i = #{m : p_m < cdf_i}``
+    exactly takes four comparisons around that estimate; then the index of
+    point ``m`` is ``#{i : c_i ≤ m}``, a histogram and a cumulative sum. No
+    binary search: this is the merge of [A] App. B's low-variance sampler
+    without its sequential loop. Returns exactly what :func:`inverse_cdf`
+    returns for the same points (a test checks it).
+    """
+    n, m = weights.shape[0], points.shape[0]
+    if n * m <= _SMALL:  # tiny sets: the binary search has fewer ops to dispatch
+        return inverse_cdf(points, weights)
+    cdf = _cdf(weights)
+    p = _clamp_below_one(points, cdf.dtype)
+    est = jnp.floor(cdf * m).astype(jnp.int32)
+
+    def below(j):  # [p_j < cdf_i] with p_{<0} = -inf and p_{≥M} = +inf
+        inside = (j >= 0) & (j < m)
+        return jnp.where(inside, jnp.take(p, jnp.clip(j, 0, m - 1)) < cdf, j < 0)
+
+    counts = est - 2 + sum(below(est + d).astype(jnp.int32) for d in (-2, -1, 0, 1))
+    counts = jnp.clip(counts, 0, m)
+    hist = jnp.zeros((m + 1,), jnp.int32).at[counts].add(1, indices_are_sorted=True)
+    return jnp.clip(fastmath.count_cumsum(hist[:m]), 0, n - 1)
 
 
 def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
@@ -84,7 +131,7 @@ def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.
     dtype = jnp.result_type(log_weights.dtype, jnp.float32)
     u = jax.random.uniform(key, (), dtype)
     points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return inverse_cdf(points, _probabilities(log_weights))
+    return stratified_inverse_cdf(points, _probabilities(log_weights))
 
 
 def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
@@ -92,7 +139,7 @@ def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.
     dtype = jnp.result_type(log_weights.dtype, jnp.float32)
     u = jax.random.uniform(key, (num_samples,), dtype)
     points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return inverse_cdf(points, _probabilities(log_weights))
+    return stratified_inverse_cdf(points, _probabilities(log_weights))
 
 
 def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:

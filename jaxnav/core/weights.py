@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import logsumexp
 
+from jaxnav.core import fastmath
+
 __all__ = [
     "Normalized",
     "sanitize_log_weights",
@@ -143,7 +145,8 @@ def circular_mean(angles: jax.Array, log_weights: jax.Array | None = None) -> ja
     else:
         w = _weights(log_weights)
     w = w.reshape(w.shape + (1,) * (angles.ndim - 1))
-    return jnp.arctan2(jnp.sum(w * jnp.sin(angles), 0), jnp.sum(w * jnp.cos(angles), 0))
+    s, c = fastmath.sincos(angles)
+    return fastmath.atan2(jnp.sum(w * s, 0), jnp.sum(w * c, 0))
 
 
 def _angle_mask(dim: int, angle_dims: tuple[int, ...]) -> jax.Array:

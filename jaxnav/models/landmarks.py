@@ -25,6 +25,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxnav.core import fastmath
 from jaxnav.core.validation import check_positive, check_shape
 from jaxnav.core.weights import wrap_angle
 
@@ -69,7 +70,7 @@ def predict(pose: jax.Array, landmark: jax.Array) -> jax.Array:
     dx = landmark[..., 0] - pose[..., 0]
     dy = landmark[..., 1] - pose[..., 1]
     r = jnp.sqrt(dx * dx + dy * dy)
-    b = wrap_angle(jnp.arctan2(dy, dx) - pose[..., 2])
+    b = wrap_angle(fastmath.atan2(dy, dx) - pose[..., 2])
     return jnp.stack([r, b], axis=-1)
 
 
@@ -117,13 +118,33 @@ def log_likelihood(
         filter's marginal likelihood is a proper density).
     """
     z_safe = jnp.where(valid[:, None], z, 0.0)
-    pred = predict(poses[..., None, :], landmark_positions)
-    resid_r = z_safe[:, 0] - pred[..., 0]
-    resid_b = wrap_angle(z_safe[:, 1] - pred[..., 1])
+    resid_r, resid_b = _residuals(poses, landmark_positions, z_safe)
     sd = params.sd
     log_norm = -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi)
     ll = log_norm - 0.5 * ((resid_r / sd[0]) ** 2 + (resid_b / sd[1]) ** 2)
     return jnp.sum(jnp.where(valid, ll, 0.0), axis=-1)
+
+
+def _residuals(poses: jax.Array, landmark_positions: jax.Array, z: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Range residual and wrapped bearing residual ``[..., K]`` with one ``atan2`` each.
+
+    The bearing residual ``wrap(φ_z − φ̂)`` is the angle from the predicted
+    direction to the measured one. With the landmark offset rotated into the
+    robot frame, ``(p_x, p_y) = R(−θ)(m − x)``, and the measured direction
+    ``(cos φ_z, sin φ_z)`` (computed once per landmark, not per particle),
+    it is ``atan2(p_x sin φ_z − p_y cos φ_z, p_x cos φ_z + p_y sin φ_z)``: no
+    wrapping, and one trigonometric call per particle–landmark pair (the cost
+    that dominates an MCL step).
+    """
+    s, c = fastmath.sincos(poses[..., 2:3])  # [..., 1]
+    dx = landmark_positions[:, 0] - poses[..., 0:1]  # [..., K]
+    dy = landmark_positions[:, 1] - poses[..., 1:2]
+    px = c * dx + s * dy
+    py = c * dy - s * dx
+    sz, cz = fastmath.sincos(z[:, 1])
+    resid_r = z[:, 0] - jnp.sqrt(dx * dx + dy * dy)
+    resid_b = fastmath.atan2(px * sz - py * cz, px * cz + py * sz)
+    return resid_r, resid_b
 
 
 def validate_noise(params: RangeBearingNoise) -> None:

@@ -38,6 +38,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxnav.core import fastmath
 from jaxnav.core.validation import check_nonnegative, check_shape
 from jaxnav.core.weights import wrap_angle
 
@@ -112,12 +113,17 @@ def _arc(pose: jax.Array, v: jax.Array, w: jax.Array, gamma: jax.Array, dt: jax.
     """
     x, y, th = pose[..., 0], pose[..., 1], pose[..., 2]
     a = w * dt
-    chord = v * dt * jnp.sinc(a / (2.0 * jnp.pi))  # jnp.sinc(z) = sin(πz)/(πz)
-    mid = th + 0.5 * a
-    return jnp.stack(
-        [x + chord * jnp.cos(mid), y + chord * jnp.sin(mid), wrap_angle(th + a + gamma * dt)],
-        axis=-1,
-    )
+    chord = v * dt * _sinc_half(a)
+    s, c = fastmath.sincos(th + 0.5 * a)
+    return jnp.stack([x + chord * c, y + chord * s, wrap_angle(th + a + gamma * dt)], axis=-1)
+
+
+def _sinc_half(a: jax.Array) -> jax.Array:
+    """``sin(a/2) / (a/2)``, smooth through ``a = 0`` (Taylor ``1 − a²/24`` there)."""
+    h = 0.5 * a
+    small = jnp.abs(h) < 1e-3
+    safe = jnp.where(small, 1.0, h)
+    return jnp.where(small, 1.0 - h * h / 6.0, fastmath.sin(safe) / safe)
 
 
 def velocity_mean(pose: jax.Array, control: jax.Array, params: VelocityNoise | None = None) -> jax.Array:
@@ -132,7 +138,7 @@ def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     v, w, dt = control[..., 0], control[..., 1], control[..., 2]
     a = params.alphas
     k_ctrl, k_pose = jax.random.split(key)
-    eps = jax.random.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
+    eps = _standard_normal_unless_zero(k_ctrl, poses.shape[:-1] + (3,), poses.dtype, a)
     v2, w2 = v * v, w * w
     v_hat = v + eps[..., 0] * jnp.sqrt(a[0] * v2 + a[1] * w2)
     w_hat = w + eps[..., 1] * jnp.sqrt(a[2] * v2 + a[3] * w2)
@@ -141,8 +147,24 @@ def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     return _add_pose_noise(k_pose, moved, params.pose_sd)
 
 
+def _standard_normal_unless_zero(key: jax.Array, shape: tuple[int, ...], dtype, scales: jax.Array) -> jax.Array:
+    """``N(0, 1)`` draws of ``shape``, or zeros when every entry of ``scales`` is 0.
+
+    Drawing normals is the largest cost of a motion update on CPU (threefry),
+    and a model whose noise is switched off (e.g. W2's pose-noise-only
+    velocity model) should not pay for it. ``lax.cond`` skips the draw at run
+    time; under ``vmap`` it becomes a select and both branches run, which is
+    still correct.
+    """
+    return jax.lax.cond(
+        jnp.any(scales != 0),
+        lambda: jax.random.normal(key, shape, dtype),
+        lambda: jnp.zeros(shape, dtype),
+    )
+
+
 def _add_pose_noise(key: jax.Array, poses: jax.Array, pose_sd: jax.Array) -> jax.Array:
-    noisy = poses + jax.random.normal(key, poses.shape, poses.dtype) * pose_sd
+    noisy = poses + _standard_normal_unless_zero(key, poses.shape, poses.dtype, pose_sd) * pose_sd
     return noisy.at[..., 2].set(wrap_angle(noisy[..., 2]))
 
 
@@ -173,7 +195,8 @@ def _odometry_deltas(control: jax.Array) -> tuple[jax.Array, jax.Array, jax.Arra
 def _apply_odometry(pose: jax.Array, rot1: jax.Array, trans: jax.Array, rot2: jax.Array) -> jax.Array:
     x, y, th = pose[..., 0], pose[..., 1], pose[..., 2]
     h = th + rot1
-    return jnp.stack([x + trans * jnp.cos(h), y + trans * jnp.sin(h), wrap_angle(h + rot2)], axis=-1)
+    s, c = fastmath.sincos(h)
+    return jnp.stack([x + trans * c, y + trans * s, wrap_angle(h + rot2)], axis=-1)
 
 
 def odometry_mean(pose: jax.Array, control: jax.Array, params: OdometryNoise | None = None) -> jax.Array:
@@ -187,7 +210,7 @@ def odometry_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     rot1, trans, rot2 = _odometry_deltas(control)
     a = params.alphas
     k_ctrl, k_pose = jax.random.split(key)
-    eps = jax.random.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
+    eps = _standard_normal_unless_zero(k_ctrl, poses.shape[:-1] + (3,), poses.dtype, a)
     r1, t2, r2 = rot1 * rot1, trans * trans, rot2 * rot2
     rot1_hat = rot1 - eps[..., 0] * jnp.sqrt(a[0] * r1 + a[1] * t2)
     trans_hat = trans - eps[..., 1] * jnp.sqrt(a[2] * t2 + a[3] * (r1 + r2))
@@ -222,7 +245,7 @@ def omni_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: Om
 
 
 def _body_to_world(poses: jax.Array, v_body: jax.Array) -> jax.Array:
-    c, s = jnp.cos(poses[..., 2]), jnp.sin(poses[..., 2])
+    s, c = fastmath.sincos(poses[..., 2])
     vx, vy = v_body[..., 0], v_body[..., 1]
     return jnp.stack([c * vx - s * vy, s * vx + c * vy, v_body[..., 2] * jnp.ones_like(c)], axis=-1)
 

@@ -120,36 +120,30 @@ def stratified_inverse_cdf(points: jax.Array, weights: jax.Array) -> jax.Array:
     return jnp.clip(fastmath.count_cumsum(hist[:m]), 0, n - 1)
 
 
-def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Multinomial resampling: ``num_samples`` i.i.d. categorical draws."""
-    lw = _w.normalize(log_weights).log_weights
-    return jax.random.categorical(key, lw, shape=(num_samples,)).astype(jnp.int32)
+# Each scheme is written on normalised probabilities ``p`` (and the matching
+# normalised log-weights, which multinomial draws from), so that a filter that
+# has already normalised its weights does not pay for it again.
 
 
-def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Systematic (low-variance) resampling, [A] App. B: points ``(u + m)/M``, one ``u``."""
-    dtype = jnp.result_type(log_weights.dtype, jnp.float32)
+def _multinomial_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
+    return jax.random.categorical(key, log_p, shape=(num_samples,)).astype(jnp.int32)
+
+
+def _systematic_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
+    dtype = jnp.result_type(p.dtype, jnp.float32)
     u = jax.random.uniform(key, (), dtype)
     points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return stratified_inverse_cdf(points, _probabilities(log_weights))
+    return stratified_inverse_cdf(points, p)
 
 
-def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Stratified resampling: one uniform in each stratum ``[m/M, (m+1)/M)``."""
-    dtype = jnp.result_type(log_weights.dtype, jnp.float32)
+def _stratified_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
+    dtype = jnp.result_type(p.dtype, jnp.float32)
     u = jax.random.uniform(key, (num_samples,), dtype)
     points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return stratified_inverse_cdf(points, _probabilities(log_weights))
+    return stratified_inverse_cdf(points, p)
 
 
-def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Residual resampling: ``⌊M w̄_i⌋`` copies, the rest multinomial on the residuals.
-
-    Shapes are static: the deterministic part fills the first
-    ``Σ⌊M w̄_i⌋`` slots (found with an inverse CDF on the integer counts), the
-    remaining slots take multinomial draws from ``M w̄_i − ⌊M w̄_i⌋``.
-    """
-    p = _probabilities(log_weights)
+def _residual_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
     n = p.shape[0]
     counts = jnp.floor(num_samples * p)
     counts_int = counts.astype(jnp.int32)
@@ -165,6 +159,47 @@ def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Ar
     log_resid = jnp.where(resid_total > 0, log_resid, jnp.zeros_like(log_resid))
     rand_idx = jax.random.categorical(key, log_resid, shape=(num_samples,))
     return jnp.where(slots < n_det, det_idx, rand_idx).astype(jnp.int32)
+
+
+def _on_log_weights(scheme_p):
+    def resampler(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+        log_p = _w.normalize(log_weights).log_weights
+        return scheme_p(key, log_p, jnp.exp(log_p), num_samples)
+
+    return resampler
+
+
+def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Multinomial resampling: ``num_samples`` i.i.d. categorical draws."""
+    return _on_log_weights(_multinomial_p)(key, log_weights, num_samples)
+
+
+def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Systematic (low-variance) resampling, [A] App. B: points ``(u + m)/M``, one ``u``."""
+    return _on_log_weights(_systematic_p)(key, log_weights, num_samples)
+
+
+def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Stratified resampling: one uniform in each stratum ``[m/M, (m+1)/M)``."""
+    return _on_log_weights(_stratified_p)(key, log_weights, num_samples)
+
+
+def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Residual resampling: ``⌊M w̄_i⌋`` copies, the rest multinomial on the residuals.
+
+    Shapes are static: the deterministic part fills the first
+    ``Σ⌊M w̄_i⌋`` slots (found with an inverse CDF on the integer counts), the
+    remaining slots take multinomial draws from ``M w̄_i − ⌊M w̄_i⌋``.
+    """
+    return _on_log_weights(_residual_p)(key, log_weights, num_samples)
+
+
+_ON_PROBABILITIES = {
+    multinomial: _multinomial_p,
+    systematic: _systematic_p,
+    stratified: _stratified_p,
+    residual: _residual_p,
+}
 
 
 SCHEMES: dict[str, Resampler] = {
@@ -242,13 +277,14 @@ def conditional_resample(
     scheme: str | Resampler = "systematic",
     refresh: bool = False,
     angle_dims: tuple[int, ...] = (),
+    normalized: bool = False,
 ) -> ResampleResult:
     """Resample when ``ESS < threshold · N``; otherwise pass the particles through.
 
     Args:
         key: PRNG key.
         particles: pytree whose leaves have leading axis ``N``.
-        log_weights: ``[N]`` log-weights (normalised or not).
+        log_weights: ``[N]`` log-weights.
         threshold: fraction of ``N`` in ``(0, 1]``; ``1.0`` resamples every step
             (ESS ≤ N always, and a uniform set is resampled too). [A] §4.3.3
             advises a low value for static targets refreshed by a Gaussian.
@@ -256,29 +292,40 @@ def conditional_resample(
         refresh: after resampling, redraw from the Gaussian fitted to the
             resampled set ([A] §4.3.3). Only for array particles ``[N, D]``.
         angle_dims: components averaged on the circle by the refresh.
+        normalized: promise that ``log_weights`` are already normalised (as
+            :func:`jaxnav.core.weights.normalize` returns them), which saves
+            normalising again inside a filter step.
 
     The decision is a ``lax.cond``; under ``vmap`` over runs it becomes a
-    per-run select, so every run decides for itself.
+    per-run select, so every run decides for itself. A Python threshold
+    ≥ 1 is decided when tracing: no branch at all.
     """
     resampler = get_resampler(scheme) if isinstance(scheme, str) else scheme
-    norm = _w.normalize(log_weights)
-    lw = norm.log_weights
+    lw = log_weights if normalized else _w.normalize(log_weights).log_weights
     n = lw.shape[0]
+    p = jnp.exp(lw)
     k_res, k_ref = jax.random.split(key)
-    ess_value = _w.ess(lw)
+    scheme_p = _ON_PROBABILITIES.get(resampler)
+    uniform = jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype)))
+
+    def _resample():
+        idx = scheme_p(k_res, lw, p, n) if scheme_p is not None else resampler(k_res, lw, n)
+        new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), particles)
+        if refresh:
+            new = gaussian_refresh(k_ref, new, None, angle_dims)
+        return new, uniform, idx
+
+    if isinstance(threshold, (int, float)) and threshold >= 1.0:
+        new_particles, new_lw, ancestors = _resample()
+        return ResampleResult(new_particles, new_lw, ancestors, jnp.asarray(True))
+
+    ess_value = 1.0 / jnp.sum(p * p)  # ESS of normalised weights, [A] App. B
     # `<=` at threshold 1 would be wrong for a perfectly uniform set only by
     # round-off; resample-always is requested explicitly with threshold >= 1.
     do_resample = (ess_value < threshold * n) | (jnp.asarray(threshold) >= 1.0)
 
-    def _resample(_):
-        idx = resampler(k_res, lw, n)
-        new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), particles)
-        if refresh:
-            new = gaussian_refresh(k_ref, new, None, angle_dims)
-        return new, jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype))), idx
-
-    def _keep(_):
+    def _keep():
         return particles, lw, jnp.arange(n, dtype=jnp.int32)
 
-    new_particles, new_lw, ancestors = jax.lax.cond(do_resample, _resample, _keep, None)
+    new_particles, new_lw, ancestors = jax.lax.cond(do_resample, _resample, _keep)
     return ResampleResult(new_particles, new_lw, ancestors, do_resample)

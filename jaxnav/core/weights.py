@@ -39,6 +39,7 @@ __all__ = [
     "circular_mean",
     "wrap_angle",
     "particle_mean",
+    "mean_from_probabilities",
 ]
 
 
@@ -163,11 +164,19 @@ def particle_mean(
 
     For a pose ``(x, y, θ)`` use ``angle_dims=(2,)``.
     """
-    mean = weighted_mean(particles, log_weights)
+    return mean_from_probabilities(particles, _weights(log_weights), angle_dims)
+
+
+def mean_from_probabilities(particles: jax.Array, probs: jax.Array, angle_dims: tuple[int, ...] = ()) -> jax.Array:
+    """:func:`particle_mean` given normalised weights ``probs [N]`` (not logs), for filters
+    that already hold them. Angle components: ``atan2(Σ p sin a, Σ p cos a)``."""
+    mean = jnp.einsum("n,nd->d", probs, particles)
     if not angle_dims:
         return mean
-    circ = circular_mean(particles, log_weights)
-    return jnp.where(_angle_mask(particles.shape[-1], angle_dims), circ, mean)
+    dims = jnp.asarray(angle_dims)
+    s, c = fastmath.sincos(particles[:, dims])
+    circ = fastmath.atan2(probs @ s, probs @ c)
+    return mean.at[dims].set(circ)
 
 
 def weighted_cov(

@@ -252,9 +252,10 @@ def _step(
     # state.log_weights is normalised, so the normaliser of the product is the
     # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
     norm = weights.normalize(state.log_weights + loglik)
+    probs = jnp.exp(norm.log_weights)
 
-    estimate = weights.particle_mean(particles, norm.log_weights, _ANGLE_DIMS)
-    ess = weights.ess(norm.log_weights)
+    estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
+    ess = 1.0 / jnp.sum(probs * probs)
     res = resampling.conditional_resample(
         k_resample,
         particles,
@@ -263,6 +264,7 @@ def _step(
         scheme=config.resampling,
         refresh=config.gaussian_refresh,
         angle_dims=_ANGLE_DIMS,
+        normalized=True,
     )
     info = MCLInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored)
     return MCLState(res.particles, res.log_weights), info

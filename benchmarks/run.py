@@ -1,0 +1,131 @@
+"""Entry point: ``python -m benchmarks.run [--only W1,W2] [--quick] [--out FILE] [--repeats K]``.
+
+Runs the registered workloads (all by default), writes one JSON file
+(default ``benchmarks/results/latest.json``) holding ``machine`` (CPU, cores,
+the memory bandwidth measured at the start of this run), ``versions`` and
+``rows`` (BENCHMARKS.md "Interface"), draws one PNG per workload beside it and
+prints a table. Workloads are discovered from :mod:`benchmarks.workloads`; a
+new workload is a new module there, this file does not change.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import traceback
+
+from benchmarks import harness
+from benchmarks.harness import Context
+from benchmarks.workloads import discover
+
+DISTURBED = 0.2  # cores used by other processes above which a measurement is repeated
+DEFAULT_OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "latest.json")
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.split("\n\n")[0])
+    p.add_argument("--only", default=None, help="comma-separated workload names, e.g. W1,W2 (default: all)")
+    p.add_argument("--quick", action="store_true", help="the two smallest sizes of each workload")
+    p.add_argument("--out", default=DEFAULT_OUT, help="JSON output file (plots go beside it)")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="timed repeats (or passes of a trajectory) per measurement; default per workload")
+    p.add_argument("--no-plot", action="store_true", help="skip the PNGs")
+    p.add_argument("--wait-quiet", type=float, default=0.0, metavar="SECONDS",
+                   help="before each size, wait up to SECONDS for other processes to leave the CPUs idle")
+    p.add_argument("--retries", type=int, default=1,
+                   help="re-measure an implementation this many times when other processes used > 0.2 cores "
+                        "during it (after waiting for a quiet machine; keeps the least disturbed attempt; default 1)")
+    return p.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    registry = discover()
+    if args.only:
+        wanted = [w.strip() for w in args.only.split(",") if w.strip()]
+        unknown = [w for w in wanted if w not in registry]
+        if unknown:
+            print(f"unknown workload(s) {unknown}; registered: {list(registry)}", file=sys.stderr)
+            return 2
+        selected = {w: registry[w] for w in registry if w in wanted}
+    else:
+        selected = registry
+    if args.repeats is not None and args.repeats < 1:
+        print("--repeats must be >= 1", file=sys.stderr)
+        return 2
+
+    t_start = time.perf_counter()
+    harness.import_all_jaxnav()  # freeze the code version timed by this run
+    print("measuring memory bandwidth …", flush=True)
+    bw = harness.measure_bandwidth()
+    machine = harness.machine_info(bw)
+    vers = harness.versions()
+    print(f"{machine['cpu']}, {machine['cores']} cores, copy bandwidth {bw['bandwidth_GB_per_s']:.2f} GB/s", flush=True)
+    print("versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()), flush=True)
+    ctx = Context(quick=args.quick, repeats=args.repeats, bandwidth=bw["bandwidth_bytes_per_s"],
+                  retries=args.retries, disturbed=DISTURBED)
+
+    rows: list[dict] = []
+    for name, wl in selected.items():
+        for size in wl.sizes_for(args.quick):
+            label = harness.size_label(size)
+            print(f"[{name}] {label} …", flush=True)
+            if args.wait_quiet > 0:
+                harness.wait_for_quiet(args.wait_quiet)
+            t0 = time.perf_counter()
+            with harness.CpuMonitor() as mon:
+                try:
+                    new = wl.run(ctx, size)
+                except Exception as exc:  # one broken workload must not lose the others' results
+                    traceback.print_exc()
+                    new = [harness.skipped_row(name, "(all)", size, "per_call", f"error: {type(exc).__name__}: {exc}")]
+            load = mon.other_cores
+            for r in new:
+                r.setdefault("other_load_cores", load)
+            worst = max((r["other_load_cores"] for r in new if r.get("other_load_cores") is not None), default=None)
+            if worst is not None and worst > ctx.disturbed:
+                ctx.note(f"{name} {label}: some timings may be disturbed (up to {worst:.2f} cores used by other processes)")
+            for r in new:
+                status = harness.fmt_time(r["median_s"]) if r.get("median_s") is not None else f"skipped ({r.get('skipped')})"
+                print(f"    {r['implementation']:<15} {r['mode']:<9} {status}", flush=True)
+            busy = "" if load is None else f", other processes {load:.2f} cores"
+            print(f"    ({time.perf_counter() - t0:.1f} s{busy})", flush=True)
+            rows.extend(new)
+
+    src_end = harness.jaxnav_source_state()
+    if (src_end["jaxnav_git"], src_end["jaxnav_dirty"]) != (vers["jaxnav_git"], vers["jaxnav_dirty"]):
+        ctx.note(f"jaxnav source changed during the run (start {vers['jaxnav_git']} dirty={vers['jaxnav_dirty']}, "
+                 f"end {src_end['jaxnav_git']} dirty={src_end['jaxnav_dirty']}); all modules were imported at the "
+                 "start, so the rows time the start version")
+    if vers.get("jaxnav_dirty"):
+        ctx.note("jaxnav/ had uncommitted changes when the run started")
+    harness.annotate_ratios(rows)
+    payload = {
+        "machine": machine,
+        "versions": vers,
+        "options": {"only": args.only, "quick": args.quick, "repeats": args.repeats,
+                    "command": " ".join([os.path.basename(sys.executable), "-m", "benchmarks.run"] + sys.argv[1:])},
+        "workloads": {n: {"title": w.title, "floor": w.floor_doc} for n, w in selected.items()},
+        "notes": ctx.notes,
+        "total_wall_s": None,
+        "rows": rows,
+    }
+    payload["total_wall_s"] = time.perf_counter() - t_start
+    harness.write_json(args.out, payload)
+    print()
+    print(harness.format_table(rows))
+    print()
+    print(f"wrote {args.out}")
+    if not args.no_plot:
+        from benchmarks.plot import plot_all
+
+        for p in plot_all(payload, args.out, selected):
+            print(f"wrote {p}")
+    print(f"total {time.perf_counter() - t_start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

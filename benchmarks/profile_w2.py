@@ -30,7 +30,8 @@ and, to explain ``motion``:
 ``normal_rbg``       the same draw with an ``impl="rbg"`` key
 
 The sum of motion … resample should be close to ``step``; the largest part
-is where to optimise.
+is where to optimise. ``--numpy`` also splits the NumPy peer's step (move,
+weigh = likelihood + normalise + ESS, indices, gather) for a side-by-side.
 """
 
 from __future__ import annotations
@@ -121,11 +122,46 @@ def profile(n: int, repeats: int) -> dict:
     return out
 
 
+def profile_numpy(n: int, repeats: int) -> dict:
+    """The NumPy peer's step split the same way: move, weigh (likelihood + normalise + ESS),
+    indices (systematic), gather (``x[idx]`` for the three arrays)."""
+    from benchmarks.peers.numpy_mcl import NumpyMCL
+    from benchmarks.workloads.w2_mcl import POSE_SD, SENSOR_SD, _initial_state, _peer_inputs
+
+    x0, lm, controls, zs = _peer_inputs(_initial_state(n))
+    pf = NumpyMCL(x0, lm, POSE_SD, SENSOR_SD, seed=7)
+    pf.step(controls[0], zs[0])
+    w, _, _ = pf.weigh(zs[1])
+    idx = pf.indices(w)
+    x, y, th = pf.x.copy(), pf.y.copy(), pf.th.copy()
+
+    def reset():
+        pf.x, pf.y, pf.th = x.copy(), y.copy(), th.copy()
+
+    def gather():
+        pf.resample(idx)
+        reset()
+
+    parts = {
+        "move": lambda: pf.move(controls[1]),
+        "weigh": lambda: pf.weigh(zs[1]),
+        "indices": lambda: pf.indices(w),
+        "gather+reset": gather,
+        "step": lambda: pf.step(controls[1], zs[1]),
+    }
+    out = {}
+    for name, f in parts.items():
+        out[name] = {"per_call_s": time_calls(f, repeats=repeats, warmup=1, budget_s=10.0).median_s}
+        reset()
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.profile_w2")
     p.add_argument("--sizes", default="1000,10000,100000,1000000")
     p.add_argument("--repeats", type=int, default=20)
     p.add_argument("--out", default=None, help="optional JSON file")
+    p.add_argument("--numpy", action="store_true", help="also split the NumPy peer's step into its parts")
     a = p.parse_args(argv)
     from benchmarks.harness import CpuMonitor, import_all_jaxnav, jaxnav_source_state
 
@@ -138,9 +174,16 @@ def main(argv=None) -> int:
             r = profile(n, a.repeats)
         result[n] = r
         print(f"N={n}  ({time.perf_counter() - t0:.0f} s, other processes {mon.other_cores} cores)")
-        print(f"  {'part':<12} {'per_call':>12} {'in_scan':>12}")
+        print(f"  {'part':<16} {'per_call':>12} {'in_scan':>12}")
         for name, v in r.items():
-            print(f"  {name:<12} {fmt_time(v['per_call_s']):>12} {fmt_time(v['in_scan_s']):>12}")
+            print(f"  {name:<16} {fmt_time(v['per_call_s']):>12} {fmt_time(v['in_scan_s']):>12}")
+        if a.numpy:
+            with CpuMonitor() as mon:
+                r_np = profile_numpy(n, a.repeats)
+            result[f"numpy_{n}"] = r_np
+            print(f"  NumPy peer (float32), other processes {mon.other_cores} cores")
+            for name, v in r_np.items():
+                print(f"  {name:<16} {fmt_time(v['per_call_s']):>12}")
     if a.out:
         with open(a.out, "w") as f:
             json.dump(result, f, indent=1)

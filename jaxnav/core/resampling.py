@@ -54,10 +54,6 @@ __all__ = [
 Resampler = Callable[[jax.Array, jax.Array, int], jax.Array]
 
 
-def _probabilities(log_weights: jax.Array) -> jax.Array:
-    return jnp.exp(_w.normalize(log_weights).log_weights)
-
-
 def _cdf(weights: jax.Array) -> jax.Array:
     cdf = fastmath.cumsum(weights)
     # An explicit reciprocal: XLA may turn a division by a scalar into this

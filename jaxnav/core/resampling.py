@@ -315,7 +315,7 @@ def conditional_resample(
         new_particles, new_lw, ancestors = _resample()
         return ResampleResult(new_particles, new_lw, ancestors, jnp.asarray(True))
 
-    ess_value = 1.0 / jnp.sum(p * p)  # ESS of normalised weights, [A] App. B
+    ess_value = _w.ess_from_probabilities(p)
     # `<=` at threshold 1 would be wrong for a perfectly uniform set only by
     # round-off; resample-always is requested explicitly with threshold >= 1.
     do_resample = (ess_value < threshold * n) | (jnp.asarray(threshold) >= 1.0)

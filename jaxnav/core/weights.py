@@ -40,6 +40,7 @@ __all__ = [
     "wrap_angle",
     "particle_mean",
     "mean_from_probabilities",
+    "ess_from_probabilities",
 ]
 
 
@@ -145,9 +146,13 @@ def circular_mean(angles: jax.Array, log_weights: jax.Array | None = None) -> ja
         w = jnp.full(angles.shape[:1], 1.0 / angles.shape[0], angles.dtype)
     else:
         w = _weights(log_weights)
-    w = w.reshape(w.shape + (1,) * (angles.ndim - 1))
+    return _circular_mean_from_probabilities(angles, w)
+
+
+def _circular_mean_from_probabilities(angles: jax.Array, probs: jax.Array) -> jax.Array:
+    """``atan2(Σ p sin a, Σ p cos a)`` over the leading axis of ``angles [N, ...]``."""
     s, c = fastmath.sincos(angles)
-    return fastmath.atan2(jnp.sum(w * s, 0), jnp.sum(w * c, 0))
+    return fastmath.atan2(jnp.tensordot(probs, s, 1), jnp.tensordot(probs, c, 1))
 
 
 def _angle_mask(dim: int, angle_dims: tuple[int, ...]) -> jax.Array:
@@ -174,9 +179,12 @@ def mean_from_probabilities(particles: jax.Array, probs: jax.Array, angle_dims: 
     if not angle_dims:
         return mean
     dims = jnp.asarray(angle_dims)
-    s, c = fastmath.sincos(particles[:, dims])
-    circ = fastmath.atan2(probs @ s, probs @ c)
-    return mean.at[dims].set(circ)
+    return mean.at[dims].set(_circular_mean_from_probabilities(particles[:, dims], probs))
+
+
+def ess_from_probabilities(probs: jax.Array) -> jax.Array:
+    """ESS ``1 / Σ p²`` ([A] App. B) of normalised weights ``probs [N]`` (not logs)."""
+    return 1.0 / jnp.sum(probs * probs)
 
 
 def weighted_cov(

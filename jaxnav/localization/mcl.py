@@ -255,7 +255,7 @@ def _step(
     probs = jnp.exp(norm.log_weights)
 
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = 1.0 / jnp.sum(probs * probs)
+    ess = weights.ess_from_probabilities(probs)
     res = resampling.conditional_resample(
         k_resample,
         particles,

@@ -21,6 +21,7 @@ __all__ = [
     "check_nonnegative",
     "check_finite",
     "check_choice",
+    "check_covariance",
 ]
 
 
@@ -84,3 +85,31 @@ def check_choice(name: str, value: Any, choices: Any) -> None:
     """``value`` must be one of ``choices``."""
     if value not in choices:
         raise ValueError(f"{name} must be one of {sorted(choices)}, got {value!r}")
+
+
+def check_covariance(name: str, cov: Any, dim: int | None = None) -> None:
+    """``cov`` must be a ``[dim, dim]`` symmetric positive-definite matrix.
+
+    Shape is always checked; symmetry (relative tolerance 1e-5) and positive
+    definiteness (a Cholesky factorisation in float64) only for concrete values.
+    """
+    shape = np.shape(cov)
+    if len(shape) != 2 or shape[0] != shape[1] or (dim is not None and shape[0] != dim):
+        want = f"({dim}, {dim})" if dim is not None else "square (n, n)"
+        raise ValueError(f"{name} must have shape {want}, got {tuple(shape)}")
+    v = _values(cov)
+    if v is None:
+        return
+    v = v.astype(np.float64)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    scale = max(float(np.max(np.abs(v))), np.finfo(np.float64).tiny)
+    if np.max(np.abs(v - v.T)) > 1e-5 * scale:
+        raise ValueError(f"{name} must be symmetric, got {v.tolist()}")
+    try:
+        np.linalg.cholesky(v)
+    except np.linalg.LinAlgError:
+        eig = np.linalg.eigvalsh(0.5 * (v + v.T))
+        raise ValueError(
+            f"{name} must be positive definite; its smallest eigenvalue is {eig.min():.3g}"
+        ) from None

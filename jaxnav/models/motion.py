@@ -9,7 +9,11 @@ Each model offers
   with ``jax.jacfwd`` instead of hand-written Jacobians;
 * ``sample(key, poses, control, params) -> poses`` — one noisy draw per pose,
   vectorised over any leading axes of ``poses [..., 3]`` (one call moves all
-  particles; the noise is drawn as one array, not per-particle keys).
+  particles; the noise is drawn as one array, not per-particle keys);
+* ``process_cov(pose, control, params) -> [3, 3]`` — the covariance of
+  ``sample`` linearised at ``pose``: ``V M Vᵀ + diag(pose_sd²)`` with ``M`` the
+  covariance of the noisy control and ``V = ∂g/∂u`` from ``jax.jacfwd``
+  (Thrun et al. Tab. 7.1 line 5), for the EKF, UKF and grid filters.
 
 Poses are ``(x, y, θ)`` in metres and radians, θ wrapped to ``[-π, π)``.
 Controls carry their own time step, so logs with irregular Δt need no extra
@@ -56,6 +60,10 @@ __all__ = [
     "omni_sample",
     "omni_body_mean",
     "omni_body_sample",
+    "velocity_process_cov",
+    "odometry_process_cov",
+    "omni_process_cov",
+    "omni_body_process_cov",
     "MODELS",
     "get_motion_model",
 ]
@@ -267,6 +275,49 @@ def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, param
 
 
 # ---------------------------------------------------------------------------
+# linearised process noise (for Kalman and grid filters)
+
+
+def _linearised_cov(g: Callable[[jax.Array], jax.Array], u_noisy: jax.Array, m_diag: jax.Array) -> jax.Array:
+    """``V diag(m) Vᵀ`` with ``V = ∂g/∂u`` at ``u_noisy`` (jax.jacfwd; wrapping θ has derivative 1)."""
+    v = jax.jacfwd(g)(u_noisy)
+    return (v * m_diag) @ v.T
+
+
+def velocity_process_cov(pose: jax.Array, control: jax.Array, params: VelocityNoise) -> jax.Array:
+    """Linearised covariance of :func:`velocity_sample` at ``pose [3]`` (Thrun et al. Tab. 7.1 lines 3–5)."""
+    v, w, dt = control[0], control[1], control[2]
+    a = params.alphas
+    v2, w2 = v * v, w * w
+    m = jnp.stack([a[0] * v2 + a[1] * w2, a[2] * v2 + a[3] * w2, a[4] * v2 + a[5] * w2])
+    g = lambda u: _arc(pose, u[0], u[1], u[2], dt)  # noqa: E731
+    return _linearised_cov(g, jnp.stack([v, w, jnp.zeros_like(w)]), m) + jnp.diag(params.pose_sd**2)
+
+
+def odometry_process_cov(pose: jax.Array, control: jax.Array, params: OdometryNoise) -> jax.Array:
+    """Linearised covariance of :func:`odometry_sample` at ``pose [3]`` (Thrun et al. Tab. 5.6 noise, Tab. 7.1 form)."""
+    rot1, trans, rot2 = _odometry_deltas(control)
+    a = params.alphas
+    r1, t2, r2 = rot1 * rot1, trans * trans, rot2 * rot2
+    m = jnp.stack([a[0] * r1 + a[1] * t2, a[2] * t2 + a[3] * (r1 + r2), a[0] * r2 + a[1] * t2])
+    g = lambda u: _apply_odometry(pose, u[0], u[1], u[2])  # noqa: E731
+    return _linearised_cov(g, jnp.stack([rot1, trans, rot2]), m) + jnp.diag(params.pose_sd**2)
+
+
+def omni_process_cov(pose: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
+    """Covariance of :func:`omni_sample`: ``diag(σ² Δt²)`` ([W] eq. 3.6; exact, the model is linear)."""
+    del pose
+    return jnp.diag((params.sd * control[3]) ** 2)
+
+
+def omni_body_process_cov(pose: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
+    """Covariance of :func:`omni_body_sample`: the body-frame noise rotated by θ_{t−1} (exact)."""
+    dt = control[3]
+    g = lambda u: _body_to_world(pose, u) * dt  # noqa: E731
+    return _linearised_cov(g, control[:3], params.sd**2)
+
+
+# ---------------------------------------------------------------------------
 # registry
 
 
@@ -279,6 +330,7 @@ class MotionModel(NamedTuple):
     sample: Callable[..., jax.Array]
     noise_type: type
     validate: Callable[[object], None]
+    process_cov: Callable[..., jax.Array]
 
 
 def _validate_velocity(params: VelocityNoise) -> None:
@@ -301,10 +353,10 @@ def _validate_omni(params: OmniNoise) -> None:
 
 
 MODELS: dict[str, MotionModel] = {
-    "velocity": MotionModel("velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity),
-    "odometry": MotionModel("odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry),
-    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni),
-    "omni_body": MotionModel("omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni),
+    "velocity": MotionModel("velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov),
+    "odometry": MotionModel("odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov),
+    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov),
+    "omni_body": MotionModel("omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov),
 }
 
 

@@ -1,0 +1,452 @@
+"""Kalman primitives: EKF and UKF predict/update, shared by every Gaussian filter.
+
+Overview
+--------
+Functions over one Gaussian ``(mean [n], cov [n, n])``; batch them with
+``jax.vmap`` (FastSLAM runs one per particle and landmark). Models are plain
+functions — ``f(x) -> x'`` for the motion, ``h(x, aux) -> z`` for an
+observation, where ``aux`` is per-observation data such as a landmark
+position — and every Jacobian comes from ``jax.jacfwd`` of them, never by hand.
+
+* EKF ([A] Alg. 1; Thrun et al. Tab. 3.3):
+  predict ``x' = f(x)``, ``P' = F P Fᵀ + Q`` with ``F = ∂f/∂x``;
+  update ``K = P Hᵀ S⁻¹``, ``S = H P Hᵀ + R`` and the Joseph form
+  ``P' = (I − KH) P (I − KH)ᵀ + K R Kᵀ``, which stays symmetric positive
+  semi-definite in float32 where ``(I − KH) P`` does not.
+* UKF (Julier & Uhlmann; Wan & van der Merwe's scaled sigma points with
+  ``α, β, κ``; Thrun et al. Tab. 3.4): ``2n + 1`` points
+  ``x ± √((n + λ)) L`` with ``L`` the Cholesky factor of ``P``.
+
+Angles: ``state_angle_dims`` / ``obs_angle_dims`` name the components that
+live on the circle (a heading, a bearing). Their residuals are wrapped to
+``[-π, π)`` and sigma-point means are taken as wrapped offsets from the
+central point, so a belief straddling ±π is averaged correctly.
+
+Several observations in one step are fused one after another
+(:func:`ekf_update_sequential`, :func:`ukf_update_sequential`: a
+``lax.scan`` over the fixed observation slots, invalid slots skipped), which
+equals the joint update for a linear model with independent noises.
+
+Gating: with ``gate`` set, an observation whose normalised innovation
+squared ``NIS = yᵀ S⁻¹ y`` exceeds it is rejected (the Mahalanobis test of
+Thrun et al. §7.5.2); :func:`chi2_gate` gives the threshold for a
+probability. Rejections are reported, never silent.
+
+Robustness: covariances are symmetrised after every operation and
+:func:`ensure_pd` adds diagonal jitter where needed; a failed Cholesky
+factorisation in the UKF falls back to the square root of the jittered
+diagonal and is reported in the result's ``cholesky_failed`` flag, so no
+NaN leaves these functions.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core.weights import wrap_angle
+
+__all__ = [
+    "Gaussian",
+    "UpdateResult",
+    "SigmaWeights",
+    "symmetrize",
+    "ensure_pd",
+    "chi2_gate",
+    "gaussian_log_pdf",
+    "ekf_predict",
+    "ekf_update",
+    "ekf_update_sequential",
+    "sigma_weights",
+    "sigma_points",
+    "ukf_predict",
+    "ukf_update",
+    "ukf_update_sequential",
+    "kalman_predict",
+    "kalman_update",
+]
+
+DEFAULT_JITTER = 1e-9  # added to the diagonal (units²) by ensure_pd
+
+
+class Gaussian(NamedTuple):
+    """A Gaussian belief: ``mean [n]`` and ``cov [n, n]``."""
+
+    mean: jax.Array
+    cov: jax.Array
+
+
+class UpdateResult(NamedTuple):
+    """Result of one (or a sequence of) measurement updates.
+
+    Attributes:
+        mean, cov: the posterior.
+        nis: normalised innovation squared ``yᵀ S⁻¹ y`` (``[K]`` for a
+            sequential update; 0 where a slot was invalid).
+        log_likelihood: ``log N(z; ẑ, S)`` summed over accepted observations.
+        accepted: bool, the observation was valid and passed the gate.
+        cholesky_failed: bool, the UKF's sigma-point factorisation failed
+            and the diagonal fallback was used (always False for the EKF).
+    """
+
+    mean: jax.Array
+    cov: jax.Array
+    nis: jax.Array
+    log_likelihood: jax.Array
+    accepted: jax.Array
+    cholesky_failed: jax.Array
+
+
+# ---------------------------------------------------------------------------
+# small helpers
+
+
+def symmetrize(cov: jax.Array) -> jax.Array:
+    """``(P + Pᵀ) / 2`` over the last two axes."""
+    return 0.5 * (cov + jnp.swapaxes(cov, -1, -2))
+
+
+def ensure_pd(cov: jax.Array, jitter: float = DEFAULT_JITTER) -> jax.Array:
+    """Symmetrise and lift the diagonal to at least ``jitter`` (keeps a Cholesky factor defined)."""
+    cov = symmetrize(cov)
+    d = jnp.diagonal(cov, axis1=-2, axis2=-1)
+    lift = jnp.maximum(jitter - d, 0.0)
+    return cov + lift[..., None] * jnp.eye(cov.shape[-1], dtype=cov.dtype)
+
+
+def chi2_gate(probability: float, dof: int) -> float:
+    """χ² quantile with ``dof`` degrees of freedom: the NIS threshold that keeps ``probability``
+    of consistent observations (host side; bisection on the exact CDF, relative accuracy 1e-12)."""
+    p = float(probability)
+    if not 0.0 < p < 1.0:
+        raise ValueError(f"gate probability must be in (0, 1), got {probability!r}")
+    if isinstance(dof, bool) or int(dof) != dof or dof < 1:
+        raise ValueError(f"dof must be a positive integer, got {dof!r}")
+    if dof == 2:
+        return -2.0 * math.log1p(-p)
+    lo, hi = 0.0, 1.0
+    while _chi2_cdf(hi, dof) < p:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _chi2_cdf(mid, dof) < p else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _chi2_cdf(x: float, dof: int) -> float:
+    """``P(dof/2, x/2)``, the regularised lower incomplete gamma function, by its power series."""
+    a, h = 0.5 * dof, 0.5 * x
+    if h <= 0.0:
+        return 0.0
+    term = total = 1.0 / a
+    n = 0
+    while term > 1e-17 * total and n < 100_000:
+        n += 1
+        term *= h / (a + n)
+        total += term
+    return min(1.0, math.exp(a * math.log(h) - h - math.lgamma(a)) * total)
+
+
+def _diff(a: jax.Array, b: jax.Array, angle_dims: tuple[int, ...]) -> jax.Array:
+    """``a − b`` with the components in ``angle_dims`` wrapped to ``[-π, π)``."""
+    d = a - b
+    for i in angle_dims:
+        d = d.at[..., i].set(wrap_angle(d[..., i]))
+    return d
+
+
+def _wrap(x: jax.Array, angle_dims: tuple[int, ...]) -> jax.Array:
+    for i in angle_dims:
+        x = x.at[..., i].set(wrap_angle(x[..., i]))
+    return x
+
+
+def _cholesky(cov: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Cholesky factor and a failure flag; on failure the jittered diagonal's square root."""
+    chol = jnp.linalg.cholesky(cov)
+    failed = ~jnp.all(jnp.isfinite(chol))
+    fallback = jnp.diag(jnp.sqrt(jnp.maximum(jnp.diagonal(cov), DEFAULT_JITTER)))
+    return jnp.where(failed, fallback, chol), failed
+
+
+def gaussian_log_pdf(residual: jax.Array, cov: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(log N(residual; 0, cov), residualᵀ cov⁻¹ residual)`` via a Cholesky solve."""
+    chol, _ = _cholesky(cov)
+    white = jax.scipy.linalg.solve_triangular(chol, residual, lower=True)
+    maha = jnp.sum(white * white)
+    log_det = 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol)))
+    return -0.5 * (maha + log_det + residual.shape[-1] * math.log(2.0 * math.pi)), maha
+
+
+def _gain(cross: jax.Array, innovation_cov: jax.Array) -> jax.Array:
+    """Kalman gain ``K = C S⁻¹`` for a cross covariance ``C [n, m]`` (a solve, not an inverse)."""
+    chol, _ = _cholesky(innovation_cov)
+    return jax.scipy.linalg.cho_solve((chol, True), cross.T).T
+
+
+def _select(accept: jax.Array, new: Gaussian, old: Gaussian) -> Gaussian:
+    return Gaussian(jnp.where(accept, new.mean, old.mean), jnp.where(accept, new.cov, old.cov))
+
+
+# ---------------------------------------------------------------------------
+# EKF
+
+
+def ekf_predict(
+    mean: jax.Array,
+    cov: jax.Array,
+    f: Callable[[jax.Array], jax.Array],
+    process_cov: jax.Array,
+) -> Gaussian:
+    """EKF prediction ([A] Alg. 1 lines 2–3): ``x' = f(x)``, ``P' = F P Fᵀ + Q``, ``F = jacfwd(f)``."""
+    x_new = f(mean)
+    jac = jax.jacfwd(f)(mean)
+    return Gaussian(x_new, ensure_pd(jac @ cov @ jac.T + process_cov))
+
+
+def ekf_update(
+    mean: jax.Array,
+    cov: jax.Array,
+    z: jax.Array,
+    h: Callable[..., jax.Array],
+    noise_cov: jax.Array,
+    aux: Any = None,
+    *,
+    valid: jax.Array | bool = True,
+    gate: float | jax.Array | None = None,
+    state_angle_dims: tuple[int, ...] = (),
+    obs_angle_dims: tuple[int, ...] = (),
+) -> UpdateResult:
+    """EKF measurement update ([A] Alg. 1 lines 4–8) in Joseph form.
+
+    Args:
+        mean, cov: prior ``[n]``, ``[n, n]``.
+        z: measurement ``[m]``; never read when ``valid`` is False (NaN is harmless).
+        h: observation mean ``h(x)`` or ``h(x, aux)`` when ``aux`` is given.
+        noise_cov: ``R [m, m]``.
+        aux: per-observation data passed to ``h`` (e.g. a landmark position).
+        valid: whether the observation exists.
+        gate: NIS threshold; observations above it are rejected (None: no gate).
+        state_angle_dims, obs_angle_dims: circular components (static).
+    """
+    hx = (lambda x: h(x, aux)) if aux is not None else h
+    z_hat = hx(mean)
+    jac = jax.jacfwd(hx)(mean)
+    z_safe = jnp.where(valid, z, z_hat)
+    y = _diff(z_safe, z_hat, obs_angle_dims)
+    s = symmetrize(jac @ cov @ jac.T + noise_cov)
+    log_lik, nis = gaussian_log_pdf(y, s)
+    gain = _gain(cov @ jac.T, s)
+    i_kh = jnp.eye(mean.shape[-1], dtype=cov.dtype) - gain @ jac
+    new = Gaussian(
+        _wrap(mean + gain @ y, state_angle_dims),
+        ensure_pd(i_kh @ cov @ i_kh.T + gain @ noise_cov @ gain.T),
+    )
+    accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
+    post = _select(accepted, new, Gaussian(mean, cov))
+    zero = jnp.zeros((), cov.dtype)
+    return UpdateResult(
+        post.mean,
+        post.cov,
+        jnp.where(valid, nis, zero),
+        jnp.where(accepted, log_lik, zero),
+        accepted,
+        jnp.zeros((), bool),
+    )
+
+
+def _sequential(update: Callable[..., UpdateResult]):
+    def run(mean, cov, zs, h, noise_cov, aux=None, *, valid, gate=None, state_angle_dims=(), obs_angle_dims=(), **kw):
+        def body(carry, slot):
+            z, ok, a = slot
+            r = update(
+                carry.mean,
+                carry.cov,
+                z,
+                h,
+                noise_cov,
+                a,
+                valid=ok,
+                gate=gate,
+                state_angle_dims=state_angle_dims,
+                obs_angle_dims=obs_angle_dims,
+                **kw,
+            )
+            return Gaussian(r.mean, r.cov), (r.nis, r.log_likelihood, r.accepted, r.cholesky_failed)
+
+        post, (nis, ll, acc, failed) = jax.lax.scan(body, Gaussian(mean, cov), (zs, valid, aux))
+        return UpdateResult(post.mean, post.cov, nis, jnp.sum(ll), acc, jnp.any(failed))
+
+    return run
+
+
+def ekf_update_sequential(
+    mean: jax.Array,
+    cov: jax.Array,
+    zs: jax.Array,
+    h: Callable[..., jax.Array],
+    noise_cov: jax.Array,
+    aux: Any = None,
+    *,
+    valid: jax.Array,
+    gate: float | jax.Array | None = None,
+    state_angle_dims: tuple[int, ...] = (),
+    obs_angle_dims: tuple[int, ...] = (),
+) -> UpdateResult:
+    """:func:`ekf_update` for ``K`` observation slots in turn (``zs [K, m]``, ``valid [K]``, ``aux`` leading ``K``).
+
+    Returns per-slot ``nis`` and ``accepted`` (``[K]``) and the summed log-likelihood.
+    """
+    return _sequential(ekf_update)(
+        mean, cov, zs, h, noise_cov, aux, valid=valid, gate=gate,
+        state_angle_dims=state_angle_dims, obs_angle_dims=obs_angle_dims,
+    )
+
+
+# ---------------------------------------------------------------------------
+# UKF
+
+
+class SigmaWeights(NamedTuple):
+    """Scaled unscented transform weights for the mean (``wm``) and covariance (``wc``), and ``√(n + λ)``."""
+
+    wm: jax.Array
+    wc: jax.Array
+    scale: float
+
+
+def sigma_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, dtype=jnp.float32) -> SigmaWeights:
+    """Weights of the ``2n + 1`` scaled sigma points (van der Merwe 2004, eq. 3.5–3.6).
+
+    ``λ = α²(n + κ) − n``; ``w_m⁰ = λ/(n + λ)``, ``w_c⁰ = w_m⁰ + 1 − α² + β``,
+    ``w⁽ⁱ⁾ = 1 / (2(n + λ))``. α = 1, β = 2, κ = 0 (the default) keeps every
+    point at ``√n`` standard deviations with a zero central mean weight,
+    which is robust for the strongly nonlinear bearing models here.
+    """
+    lam = alpha**2 * (n + kappa) - n
+    if n + lam <= 0:
+        raise ValueError(f"UKF parameters give n + λ = {n + lam} ≤ 0; increase alpha or kappa")
+    wi = 1.0 / (2.0 * (n + lam))
+    wm = np.full(2 * n + 1, wi)
+    wc = np.full(2 * n + 1, wi)
+    wm[0] = lam / (n + lam)
+    wc[0] = wm[0] + 1.0 - alpha**2 + beta
+    return SigmaWeights(jnp.asarray(wm, dtype), jnp.asarray(wc, dtype), math.sqrt(n + lam))
+
+
+def sigma_points(mean: jax.Array, cov: jax.Array, weights: SigmaWeights, state_angle_dims: tuple[int, ...] = ()) -> tuple[jax.Array, jax.Array]:
+    """``[2n + 1, n]`` sigma points ``x, x ± √(n + λ) Lᵢ`` and the Cholesky failure flag."""
+    chol, failed = _cholesky(ensure_pd(cov))
+    offsets = weights.scale * chol.T  # rows are the columns of L
+    pts = jnp.concatenate([mean[None], mean + offsets, mean - offsets], axis=0)
+    return _wrap(pts, state_angle_dims), failed
+
+
+def _unscented_moments(points: jax.Array, weights: SigmaWeights, angle_dims: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
+    """Weighted mean (angles as wrapped offsets from the central point) and deviations."""
+    ref = points[0]
+    offsets = _diff(points, ref, angle_dims)
+    mean = _wrap(ref + weights.wm @ offsets, angle_dims)
+    return mean, _diff(points, mean, angle_dims)
+
+
+def ukf_predict(
+    mean: jax.Array,
+    cov: jax.Array,
+    f: Callable[[jax.Array], jax.Array],
+    process_cov: jax.Array,
+    weights: SigmaWeights,
+    state_angle_dims: tuple[int, ...] = (),
+) -> tuple[Gaussian, jax.Array]:
+    """Unscented prediction (Thrun et al. Tab. 3.4 lines 2–5); returns ``(prior, cholesky_failed)``."""
+    pts, failed = sigma_points(mean, cov, weights, state_angle_dims)
+    moved = jax.vmap(f)(pts)
+    m, dev = _unscented_moments(moved, weights, state_angle_dims)
+    p = (dev * weights.wc[:, None]).T @ dev + process_cov
+    return Gaussian(m, ensure_pd(p)), failed
+
+
+def ukf_update(
+    mean: jax.Array,
+    cov: jax.Array,
+    z: jax.Array,
+    h: Callable[..., jax.Array],
+    noise_cov: jax.Array,
+    aux: Any = None,
+    *,
+    valid: jax.Array | bool = True,
+    gate: float | jax.Array | None = None,
+    state_angle_dims: tuple[int, ...] = (),
+    obs_angle_dims: tuple[int, ...] = (),
+    weights: SigmaWeights,
+) -> UpdateResult:
+    """Unscented measurement update (Thrun et al. Tab. 3.4 lines 6–13); arguments as :func:`ekf_update`."""
+    hx = (lambda x: h(x, aux)) if aux is not None else h
+    pts, failed = sigma_points(mean, cov, weights, state_angle_dims)
+    zs = jax.vmap(hx)(pts)
+    z_hat, dz = _unscented_moments(zs, weights, obs_angle_dims)
+    dx = _diff(pts, mean, state_angle_dims)
+    s = symmetrize((dz * weights.wc[:, None]).T @ dz + noise_cov)
+    cross = (dx * weights.wc[:, None]).T @ dz
+    z_safe = jnp.where(valid, z, z_hat)
+    y = _diff(z_safe, z_hat, obs_angle_dims)
+    log_lik, nis = gaussian_log_pdf(y, s)
+    gain = _gain(cross, s)
+    new = Gaussian(_wrap(mean + gain @ y, state_angle_dims), ensure_pd(cov - gain @ s @ gain.T))
+    accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
+    post = _select(accepted, new, Gaussian(mean, cov))
+    zero = jnp.zeros((), cov.dtype)
+    return UpdateResult(
+        post.mean,
+        post.cov,
+        jnp.where(valid, nis, zero),
+        jnp.where(accepted, log_lik, zero),
+        accepted,
+        failed & jnp.asarray(valid),
+    )
+
+
+def ukf_update_sequential(
+    mean: jax.Array,
+    cov: jax.Array,
+    zs: jax.Array,
+    h: Callable[..., jax.Array],
+    noise_cov: jax.Array,
+    aux: Any = None,
+    *,
+    valid: jax.Array,
+    gate: float | jax.Array | None = None,
+    state_angle_dims: tuple[int, ...] = (),
+    obs_angle_dims: tuple[int, ...] = (),
+    weights: SigmaWeights,
+) -> UpdateResult:
+    """:func:`ukf_update` over ``K`` observation slots in turn (see :func:`ekf_update_sequential`)."""
+    return _sequential(ukf_update)(
+        mean, cov, zs, h, noise_cov, aux, valid=valid, gate=gate,
+        state_angle_dims=state_angle_dims, obs_angle_dims=obs_angle_dims, weights=weights,
+    )
+
+
+# ---------------------------------------------------------------------------
+# linear Kalman filter (the reference the EKF and UKF must reproduce)
+
+
+def kalman_predict(mean: jax.Array, cov: jax.Array, transition: jax.Array, process_cov: jax.Array) -> Gaussian:
+    """Linear prediction ``x' = A x``, ``P' = A P Aᵀ + Q``."""
+    return Gaussian(transition @ mean, symmetrize(transition @ cov @ transition.T + process_cov))
+
+
+def kalman_update(
+    mean: jax.Array,
+    cov: jax.Array,
+    z: jax.Array,
+    observation: jax.Array,
+    noise_cov: jax.Array,
+    valid: jax.Array | bool = True,
+) -> UpdateResult:
+    """Linear update ``z = C x + v`` in Joseph form; a thin case of :func:`ekf_update`."""
+    return ekf_update(mean, cov, z, lambda x: observation @ x, noise_cov, valid=valid)

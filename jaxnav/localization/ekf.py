@@ -1,0 +1,262 @@
+"""EKF localization with a known landmark map, [A] Alg. 1 (Thrun et al. Tab. 7.2).
+
+Overview
+--------
+The belief over the pose ``(x, y, θ)`` is one Gaussian ``(μ, Σ)``. Each step:
+
+1. predict with the motion model's mean ``g(u, x)`` ([A] Alg. 1 lines 2–3):
+   ``μ̄ = g(u, μ)``, ``Σ̄ = G Σ Gᵀ + Q`` with ``G = ∂g/∂x`` from ``jax.jacfwd``
+   and ``Q`` the model's linearised process noise
+   (:func:`jaxnav.models.motion.get_motion_model` ``.process_cov``:
+   ``V M Vᵀ`` plus any additive pose noise);
+2. fuse the step's range-bearing observations one after another (lines 4–8;
+   known correspondences), Jacobians again by ``jax.jacfwd`` of
+   :func:`jaxnav.models.landmarks.predict`, covariance in Joseph form, bearing
+   residuals wrapped.
+
+Optional Mahalanobis gating (``EKFConfig.gate_probability``): an observation
+whose NIS exceeds the χ²₂ quantile is rejected and counted in
+``info.num_gated`` — the outlier handling real data such as MRCLAM needs.
+
+Interface (deterministic: no key)::
+
+    state = ekf.init(config, params, initial_pose, initial_cov)
+    state, info = ekf.step(state, config, params, control, observation)
+    final_state, trace = ekf.run(config, params, controls, observations, state)
+
+:mod:`jaxnav.localization.ukf` shares the parameters, state and info types.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import kalman
+from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
+from jaxnav.models import landmarks as lm
+from jaxnav.models.motion import MODELS, get_motion_model
+
+__all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "step", "run"]
+
+STATE_ANGLE_DIMS = (2,)
+OBS_ANGLE_DIMS = (1,)
+
+
+def _check_gate(probability: float | None) -> None:
+    if probability is not None:
+        kalman.chi2_gate(probability, 2)  # raises a ValueError naming the problem
+
+
+@dataclass(frozen=True)
+class EKFConfig:
+    """Static configuration.
+
+    Attributes:
+        motion_model: name in :data:`jaxnav.models.motion.MODELS`.
+        gate_probability: if set (e.g. 0.999), reject observations whose NIS
+            exceeds the χ²₂ quantile of that probability; None disables gating.
+    """
+
+    motion_model: str = "velocity"
+    gate_probability: float | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("motion_model", self.motion_model, MODELS)
+        _check_gate(self.gate_probability)
+
+    @property
+    def gate(self) -> float | None:
+        """The NIS threshold (χ²₂ quantile), or None."""
+        return None if self.gate_probability is None else kalman.chi2_gate(self.gate_probability, 2)
+
+
+class KalmanParams(NamedTuple):
+    """Differentiable parameters of EKF/UKF localization.
+
+    Attributes:
+        motion: noise of the configured motion model (e.g. ``VelocityNoise``).
+        sensor: range-bearing noise ``(σ_r [m], σ_φ [rad])``.
+        landmarks: ``[M, 2]`` known landmark positions (m).
+    """
+
+    motion: Any
+    sensor: lm.RangeBearingNoise
+    landmarks: jax.Array
+
+
+class KalmanState(NamedTuple):
+    """Gaussian pose belief: ``mean [3]`` (m, m, rad) and ``cov [3, 3]``."""
+
+    mean: jax.Array
+    cov: jax.Array
+
+
+class KalmanInfo(NamedTuple):
+    """Per-step diagnostics (stacked over time by ``run``).
+
+    Attributes:
+        estimate: ``[3]`` posterior mean.
+        cov: ``[3, 3]`` posterior covariance (for NEES checks and plots).
+        nis: ``[K]`` normalised innovation squared per observation slot (0 where invalid).
+        accepted: ``[K]`` bool, slot was fused.
+        log_likelihood: ``Σ log N(z; ẑ, S)`` over fused observations.
+        num_ignored: slots whose landmark id is not in the map.
+        num_gated: valid slots rejected by the gate.
+        cholesky_failed: bool, a UKF factorisation fell back to the diagonal (EKF: always False).
+    """
+
+    estimate: jax.Array
+    cov: jax.Array
+    nis: jax.Array
+    accepted: jax.Array
+    log_likelihood: jax.Array
+    num_ignored: jax.Array
+    num_gated: jax.Array
+    cholesky_failed: jax.Array
+
+
+# ---------------------------------------------------------------------------
+# validation (shared with ukf)
+
+
+def validate_params(config: Any, params: KalmanParams) -> None:
+    """Host-side checks of :class:`KalmanParams` against ``config.motion_model``."""
+    model = get_motion_model(config.motion_model)
+    if not isinstance(params, KalmanParams):
+        raise ValueError(f"params must be a KalmanParams, got {type(params).__name__}")
+    if not isinstance(params.motion, model.noise_type):
+        raise ValueError(
+            f"params.motion must be a {model.noise_type.__name__} for motion model "
+            f"{config.motion_model!r}, got {type(params.motion).__name__}"
+        )
+    model.validate(params.motion)
+    lm.validate_noise(params.sensor)
+    check_shape("params.landmarks", params.landmarks, (None, 2))
+    if np.shape(params.landmarks)[0] < 1:
+        raise ValueError("params.landmarks must hold at least one landmark")
+    check_finite("params.landmarks", params.landmarks)
+
+
+def validate_state(state: KalmanState) -> None:
+    """Shapes, finiteness and positive definiteness of a Gaussian pose state."""
+    if not isinstance(state, KalmanState):
+        raise ValueError(f"state must be a KalmanState, got {type(state).__name__}")
+    check_shape("state.mean", state.mean, (3,))
+    check_finite("state.mean", state.mean)
+    check_covariance("state.cov", state.cov, 3)
+
+
+def validate_inputs(config: Any, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
+    """Controls ``[(T,) control_dim]`` and matching observation slots."""
+    dim = get_motion_model(config.motion_model).control_dim
+    name = "controls" if time_axis else "control"
+    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
+    check_finite(name, controls)
+    if not isinstance(obs, lm.RangeBearingObs):
+        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
+    lm.validate_observations(obs, time_axis)
+    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
+        raise ValueError(
+            f"controls and observations must have the same number of steps, got "
+            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
+        )
+
+
+def init(config: Any, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array) -> KalmanState:
+    """The Gaussian prior ``N(initial_pose, initial_cov)``.
+
+    Args:
+        initial_pose: ``[3]`` (m, m, rad).
+        initial_cov: ``[3, 3]`` symmetric positive definite (m², rad²); a
+            non-positive-definite matrix raises ``ValueError``.
+    """
+    validate_params(config, params)
+    mean = jnp.asarray(initial_pose, jnp.result_type(float))
+    state = KalmanState(mean, jnp.asarray(initial_cov, mean.dtype))
+    validate_state(state)
+    return state
+
+
+# ---------------------------------------------------------------------------
+# step and run
+
+
+def kalman_step(
+    state: KalmanState,
+    params: KalmanParams,
+    control: jax.Array,
+    obs: lm.RangeBearingObs,
+    motion_model: str,
+    predict: Callable[..., tuple[kalman.Gaussian, jax.Array]],
+    update: Callable[..., kalman.UpdateResult],
+) -> tuple[KalmanState, KalmanInfo]:
+    """One Gaussian localization step; ``predict``/``update`` choose EKF or UKF."""
+    model = get_motion_model(motion_model)
+    q = model.process_cov(state.mean, control, params.motion)
+    prior, failed_predict = predict(state.mean, state.cov, lambda x: model.mean(x, control), q)
+    positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
+    r = jnp.diag(params.sensor.sd**2)
+    res = update(prior.mean, prior.cov, obs.z, lm.predict, r, positions, valid=valid)
+    num_gated = jnp.sum(valid & ~res.accepted).astype(jnp.int32)
+    info = KalmanInfo(
+        res.mean, res.cov, res.nis, res.accepted, res.log_likelihood, num_ignored, num_gated,
+        failed_predict | res.cholesky_failed,
+    )
+    return KalmanState(res.mean, res.cov), info
+
+
+def _ekf_predict(mean, cov, f, q):
+    return kalman.ekf_predict(mean, cov, f, q), jnp.zeros((), bool)
+
+
+def _step(state: KalmanState, config: EKFConfig, params: KalmanParams, control, obs) -> tuple[KalmanState, KalmanInfo]:
+    update = partial(
+        kalman.ekf_update_sequential,
+        gate=config.gate,
+        state_angle_dims=STATE_ANGLE_DIMS,
+        obs_angle_dims=OBS_ANGLE_DIMS,
+    )
+    return kalman_step(state, params, control, obs, config.motion_model, _ekf_predict, update)
+
+
+_step_jit = jax.jit(_step, static_argnames=("config",))
+
+
+def step(
+    state: KalmanState, config: EKFConfig, params: KalmanParams, control: jax.Array, observation: lm.RangeBearingObs
+) -> tuple[KalmanState, KalmanInfo]:
+    """One EKF localization step ([A] Alg. 1); validated on the host, then jitted."""
+    validate_params(config, params)
+    validate_state(state)
+    validate_inputs(config, control, observation, time_axis=False)
+    return _step_jit(state, config, params, control, observation)
+
+
+def scan_steps(step_fn: Callable, config: Any, params: KalmanParams, controls, observations, state):
+    """``lax.scan`` of ``step_fn(state, config, params, u, z)`` over time (shared with ukf)."""
+    return jax.lax.scan(lambda s, x: step_fn(s, config, params, *x), state, (controls, observations))
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _run_jit(config: EKFConfig, params: KalmanParams, controls, observations, state):
+    return scan_steps(_step, config, params, controls, observations, state)
+
+
+def run(
+    config: EKFConfig,
+    params: KalmanParams,
+    controls: jax.Array,
+    observations: lm.RangeBearingObs,
+    initial_state: KalmanState,
+) -> tuple[KalmanState, KalmanInfo]:
+    """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``."""
+    validate_params(config, params)
+    validate_state(initial_state)
+    validate_inputs(config, controls, observations, time_axis=True)
+    return _run_jit(config, params, controls, observations, initial_state)

@@ -1,0 +1,41 @@
+"""jaxnav.metrics: trajectory and map errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jaxnav import metrics
+
+
+def test_align_rigid_recovers_a_known_motion():
+    rng = np.random.default_rng(0)
+    truth = rng.uniform(0, 10, (7, 2))
+    th = 0.4
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    estimate = truth @ rot.T + np.array([1.5, -2.0])
+    err = metrics.map_errors(estimate, truth)
+    assert float(err.rmse) > 1.0
+    assert float(err.aligned_rmse) < 1e-5
+    np.testing.assert_allclose(np.asarray(err.rotation), rot.T, atol=1e-5)
+
+
+def test_aligned_error_of_noisy_map_and_mask():
+    """Alignment never increases the error; masked landmarks are not scored."""
+    rng = np.random.default_rng(1)
+    truth = rng.uniform(0, 10, (8, 2))
+    estimate = truth + rng.normal(0, 0.1, truth.shape)
+    estimate[3] += 50.0
+    mask = np.ones(8, bool)
+    mask[3] = False
+    err = metrics.map_errors(estimate, truth, mask)
+    assert float(err.aligned_rmse) <= float(err.rmse) < 0.2
+
+
+def test_reflection_is_not_allowed():
+    """A mirrored map cannot be aligned by a rotation (det R = +1)."""
+    truth = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 2.0], [3.0, 3.0]])
+    mirrored = truth * np.array([1.0, -1.0])
+    err = metrics.map_errors(mirrored, truth)
+    assert float(err.aligned_rmse) > 0.5
+    assert np.linalg.det(np.asarray(err.rotation)) == pytest.approx(1.0, abs=1e-5)

@@ -1,0 +1,496 @@
+"""FastSLAM 1.0 and 2.0 with known data association, generic over the observation model.
+
+Overview
+--------
+A Rao-Blackwellised particle filter ([A] Alg. 5, [W] eq. 3.2; Montemerlo et
+al. 2002/2003; Thrun et al. Tab. 13.1–13.2): each of the ``N`` particles
+holds a pose ``(x, y, θ)`` and its own map of ``M`` landmarks, every landmark
+a small Gaussian ``(μ [D], Σ [D, D])`` updated by its own EKF.
+
+One step:
+
+1. **Pose.** FastSLAM 1.0 draws the pose from the motion model
+   (:mod:`jaxnav.models.motion`). FastSLAM 2.0 draws it from the proposal
+   that also uses the step's observations of already-mapped landmarks: an EKF
+   update of the predicted pose ``N(g(u, x), Q_t)`` with each observation in
+   turn, measurement noise ``R + H_m Σ_j H_mᵀ`` (Montemerlo et al. 2003,
+   eqs. 10–11, in Kalman form so that ``Q_t`` need not be inverted), and the
+   weight is that update's marginal likelihood ``N(z; ẑ, H_x Q_t H_xᵀ + H_m Σ_j H_mᵀ + R)``
+   (their eq. 15, multiplied over observations sequentially).
+2. **Landmarks.** Each observation slot ``k`` (a ``lax.scan`` over the ``K``
+   fixed slots, so two observations of one landmark in a step are applied in
+   turn) gathers landmark ``j = ids[k]`` from every particle, runs the EKF
+   update (:func:`jaxnav.core.kalman.ekf_update`, Jacobian by ``jax.jacfwd``
+   of the model's ``mean``, vmapped over particles) and scatters it back: a
+   step costs ``O(N·K)`` and never touches unobserved landmarks. A landmark
+   seen for the first time is initialised from the inverse model,
+   ``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ`` with ``J = ∂h⁻¹/∂z`` (Thrun et al.
+   Tab. 13.1 lines 9–11); it adds nothing to the weight (the default
+   importance ``p₀`` of Tab. 13.1 is the same for every particle under known
+   association, so it is left out).
+3. **Weights** are multiplied in the log domain (FastSLAM 1.0: the landmark
+   EKFs' innovation likelihoods), normalised with logsumexp; a degenerate
+   step resets to uniform and is flagged.
+4. **Resampling** (conditional on the ESS; every step by default, as [A]
+   Alg. 5) copies every chosen particle's *whole map*: ``O(N·M)`` memory
+   traffic, the cost of FastSLAM that benchmark W3 measures.
+
+Observation models
+------------------
+:class:`ObservationModel` packs ``mean(pose, landmark) -> z``,
+``inverse(pose, z) -> landmark``, ``noise_cov(sensor_params) -> R`` and the
+circular components of ``z``. :data:`RANGE_BEARING` is the point-landmark
+model of :mod:`jaxnav.models.landmarks`; the HF-RFID and other sensors plug
+in by passing their own :class:`ObservationModel` as ``config.observation_model``.
+Observations are fixed-slot arrays with fields ``ids [K]`` (landmark slot),
+``z [K, dz]`` and ``mask [K]`` (e.g. :class:`~jaxnav.models.landmarks.RangeBearingObs`);
+masked slots and ids outside ``[0, M)`` are ignored, the latter counted.
+
+Interface::
+
+    state = fastslam.init(key, config, params, initial_pose)
+    state, info = fastslam.step(key, state, config, params, control, observation)
+    final_state, trace = fastslam.run(key, config, params, controls, observations, state)
+    landmarks, seen = fastslam.map_estimate(state)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import kalman, resampling, weights
+from jaxnav.core.validation import (
+    check_choice,
+    check_finite,
+    check_fraction,
+    check_nonnegative,
+    check_positive_int,
+    check_shape,
+)
+from jaxnav.models import landmarks as lm
+from jaxnav.models.motion import MODELS, get_motion_model
+
+__all__ = [
+    "ObservationModel",
+    "RANGE_BEARING",
+    "FastSLAMConfig",
+    "FastSLAMParams",
+    "FastSLAMState",
+    "FastSLAMInfo",
+    "init",
+    "step",
+    "run",
+    "map_estimate",
+]
+
+_POSE_ANGLE_DIMS = (2,)
+
+
+class ObservationModel(NamedTuple):
+    """A landmark observation model for FastSLAM (hashable: it lives in the static config).
+
+    Attributes:
+        name: label used in messages.
+        obs_dim: ``dz``, size of one measurement.
+        landmark_dim: ``D``, size of a landmark's state.
+        mean: ``h(pose [3], landmark [D]) -> z [dz]``, smooth in both arguments.
+        inverse: ``h⁻¹(pose [3], z [dz]) -> landmark [D]``, used to initialise.
+        noise_cov: ``sensor_params -> R [dz, dz]``.
+        angle_dims: components of ``z`` that are angles (residuals wrapped).
+        validate: host-side check of the sensor parameters (raises ValueError).
+    """
+
+    name: str
+    obs_dim: int
+    landmark_dim: int
+    mean: Callable[[jax.Array, jax.Array], jax.Array]
+    inverse: Callable[[jax.Array, jax.Array], jax.Array]
+    noise_cov: Callable[[Any], jax.Array]
+    angle_dims: tuple[int, ...]
+    validate: Callable[[Any], None]
+
+
+def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
+    return jnp.diag(sensor.sd**2)
+
+
+RANGE_BEARING = ObservationModel(
+    "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
+)
+OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING}
+
+
+@dataclass(frozen=True)
+class FastSLAMConfig:
+    """Static configuration.
+
+    Attributes:
+        num_particles: N.
+        num_landmarks: M, the map capacity (landmark slots ``0 … M−1``).
+        version: 1 (proposal = motion model) or 2 (proposal from the observations).
+        motion_model: name in :data:`jaxnav.models.motion.MODELS`.
+        observation_model: a name in ``OBSERVATION_MODELS`` or an :class:`ObservationModel`.
+        resampling: scheme name in :data:`jaxnav.core.resampling.SCHEMES`.
+        ess_threshold: resample when ESS < ``ess_threshold · N``; 1.0 (default) every step.
+    """
+
+    num_particles: int = 100
+    num_landmarks: int = 16
+    version: int = 1
+    motion_model: str = "velocity"
+    observation_model: str | ObservationModel = "range_bearing"
+    resampling: str = "systematic"
+    ess_threshold: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_positive_int("num_particles", self.num_particles)
+        check_positive_int("num_landmarks", self.num_landmarks)
+        check_choice("version", self.version, (1, 2))
+        check_choice("motion_model", self.motion_model, MODELS)
+        if not isinstance(self.observation_model, ObservationModel):
+            check_choice("observation_model", self.observation_model, OBSERVATION_MODELS)
+        check_choice("resampling", self.resampling, resampling.SCHEMES)
+        check_fraction("ess_threshold", self.ess_threshold)
+
+    @property
+    def obs_model(self) -> ObservationModel:
+        """The resolved :class:`ObservationModel`."""
+        om = self.observation_model
+        return om if isinstance(om, ObservationModel) else OBSERVATION_MODELS[om]
+
+
+class FastSLAMParams(NamedTuple):
+    """Differentiable parameters.
+
+    Attributes:
+        motion: noise of the configured motion model.
+        sensor: parameters of the observation model's noise (e.g. ``RangeBearingNoise``).
+    """
+
+    motion: Any
+    sensor: Any
+
+
+class FastSLAMState(NamedTuple):
+    """Particles and their maps.
+
+    Attributes:
+        poses: ``[N, 3]`` (m, m, rad).
+        log_weights: ``[N]`` normalised.
+        means: ``[N, M, D]`` landmark means per particle (m).
+        covs: ``[N, M, D, D]`` landmark covariances per particle (m²).
+        seen: ``[M]`` bool, the landmark has been initialised (shared by all
+            particles: with known association they all see it at the same step).
+    """
+
+    poses: jax.Array
+    log_weights: jax.Array
+    means: jax.Array
+    covs: jax.Array
+    seen: jax.Array
+
+
+class FastSLAMInfo(NamedTuple):
+    """Per-step diagnostics.
+
+    Attributes:
+        estimate: ``[3]`` weighted mean pose (circular θ) before resampling.
+        ess: effective sample size before resampling.
+        resampled: bool.
+        log_likelihood: the step's log marginal-likelihood increment estimate.
+        degenerate: bool, all weights were zero and were reset.
+        num_ignored: valid slots whose id is outside ``[0, M)``.
+        num_new: landmarks initialised this step.
+    """
+
+    estimate: jax.Array
+    ess: jax.Array
+    resampled: jax.Array
+    log_likelihood: jax.Array
+    degenerate: jax.Array
+    num_ignored: jax.Array
+    num_new: jax.Array
+
+
+# ---------------------------------------------------------------------------
+# validation
+
+
+def _validate_params(config: FastSLAMConfig, params: FastSLAMParams) -> None:
+    if not isinstance(params, FastSLAMParams):
+        raise ValueError(f"params must be a FastSLAMParams, got {type(params).__name__}")
+    model = get_motion_model(config.motion_model)
+    if not isinstance(params.motion, model.noise_type):
+        raise ValueError(
+            f"params.motion must be a {model.noise_type.__name__} for motion model "
+            f"{config.motion_model!r}, got {type(params.motion).__name__}"
+        )
+    model.validate(params.motion)
+    config.obs_model.validate(params.sensor)
+
+
+def _validate_state(config: FastSLAMConfig, state: FastSLAMState) -> None:
+    n, m, d = config.num_particles, config.num_landmarks, config.obs_model.landmark_dim
+    check_shape("state.poses", state.poses, (n, 3))
+    check_shape("state.log_weights", state.log_weights, (n,))
+    check_shape("state.means", state.means, (n, m, d))
+    check_shape("state.covs", state.covs, (n, m, d, d))
+    check_shape("state.seen", state.seen, (m,))
+
+
+def _validate_inputs(config: FastSLAMConfig, controls: jax.Array, obs: Any, time_axis: bool) -> None:
+    dim = get_motion_model(config.motion_model).control_dim
+    name = "controls" if time_axis else "control"
+    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
+    check_finite(name, controls)
+    for field in ("ids", "z", "mask"):
+        if not hasattr(obs, field):
+            raise ValueError(f"observations must have fields ids, z and mask (e.g. RangeBearingObs); missing {field!r}")
+    lead = (None, None) if time_axis else (None,)
+    check_shape("observations.ids", obs.ids, lead)
+    check_shape("observations.mask", obs.mask, lead)
+    check_shape("observations.z", obs.z, lead + (config.obs_model.obs_dim,))
+    if np.shape(obs.ids) != np.shape(obs.mask) or np.shape(obs.z)[:-1] != np.shape(obs.ids):
+        raise ValueError(
+            f"observations.ids, .mask and .z must agree in leading shape, got "
+            f"{np.shape(obs.ids)}, {np.shape(obs.mask)}, {np.shape(obs.z)}"
+        )
+    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
+        raise ValueError(
+            f"controls and observations must have the same number of steps, got "
+            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
+        )
+
+
+# ---------------------------------------------------------------------------
+# init
+
+
+def init(
+    key: jax.Array,
+    config: FastSLAMConfig,
+    params: FastSLAMParams,
+    initial_pose: jax.Array,
+    initial_sd: jax.Array | None = None,
+    landmark_means: jax.Array | None = None,
+    landmark_covs: jax.Array | None = None,
+) -> FastSLAMState:
+    """Particles at ``N(initial_pose, diag(initial_sd²))`` with empty maps, or a given prior map.
+
+    Args:
+        initial_pose: ``[3]``; SLAM fixes the frame by the initial pose, so
+            the default ``initial_sd = 0`` starts every particle there.
+        landmark_means: optional ``[M, D]`` prior map copied into every
+            particle (marks every landmark seen), e.g. for benchmark W3.
+        landmark_covs: ``[M, D, D]`` covariances of that prior map (default
+            ``1e-2 I`` m²).
+    """
+    _validate_params(config, params)
+    n, m, d = config.num_particles, config.num_landmarks, config.obs_model.landmark_dim
+    pose = jnp.asarray(initial_pose, jnp.result_type(float))
+    check_shape("initial_pose", pose, (3,))
+    check_finite("initial_pose", pose)
+    sd = jnp.zeros(3, pose.dtype) if initial_sd is None else jnp.asarray(initial_sd, pose.dtype)
+    check_shape("initial_sd", sd, (3,))
+    check_nonnegative("initial_sd", sd)
+    poses = pose + jax.random.normal(key, (n, 3), pose.dtype) * sd
+    poses = poses.at[:, 2].set(weights.wrap_angle(poses[:, 2]))
+    if landmark_means is None:
+        means = jnp.zeros((n, m, d), pose.dtype)
+        covs = jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (n, m, d, d))
+        seen = jnp.zeros((m,), bool)
+    else:
+        lm_means = jnp.asarray(landmark_means, pose.dtype)
+        check_shape("landmark_means", lm_means, (m, d))
+        check_finite("landmark_means", lm_means)
+        lm_covs = 1e-2 * jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (m, d, d)) if landmark_covs is None else jnp.asarray(landmark_covs, pose.dtype)
+        check_shape("landmark_covs", lm_covs, (m, d, d))
+        means = jnp.broadcast_to(lm_means, (n, m, d))
+        covs = jnp.broadcast_to(lm_covs, (n, m, d, d))
+        seen = jnp.ones((m,), bool)
+    log_w = jnp.full((n,), -np.log(n), pose.dtype)
+    # materialise the broadcasts: the state is updated in place from here on
+    return FastSLAMState(poses, log_w, jnp.array(means), jnp.array(covs), seen)
+
+
+# ---------------------------------------------------------------------------
+# step
+
+
+def _slot_valid(obs: Any, m: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(valid [K], safe ids [K], num_ignored)``: ids outside ``[0, M)`` dropped and counted."""
+    in_map = (obs.ids >= 0) & (obs.ids < m)
+    valid = obs.mask & in_map
+    return valid, jnp.clip(obs.ids, 0, m - 1), jnp.sum(obs.mask & ~in_map).astype(jnp.int32)
+
+
+def _landmark_ekf(om: ObservationModel, r: jax.Array, pose, mean, cov, z) -> kalman.UpdateResult:
+    """EKF update of one landmark ``(mean, cov)`` seen from ``pose`` (Tab. 13.1 lines 13–18)."""
+    return kalman.ekf_update(mean, cov, z, lambda mu: om.mean(pose, mu), r, obs_angle_dims=om.angle_dims)
+
+
+def _landmark_init(om: ObservationModel, r: jax.Array, pose, z) -> tuple[jax.Array, jax.Array]:
+    """``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ``, ``J = ∂h⁻¹/∂z`` (Tab. 13.1 lines 9–11)."""
+    jac = jax.jacfwd(lambda zz: om.inverse(pose, zz))(z)
+    return om.inverse(pose, z), kalman.ensure_pd(jac @ r @ jac.T)
+
+
+def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids):
+    """Scan the ``K`` slots: initialise or EKF-update landmark ``ids[k]`` in every particle.
+
+    Returns the new ``(means, covs, seen)``, per-particle log-likelihood
+    ``[N]`` of the updates (FastSLAM 1.0's weight) and the count of new landmarks.
+    """
+
+    def body(carry, slot):
+        means, covs, seen, loglik, num_new = carry
+        j, z, ok = slot
+        mu_j = means[:, j]
+        cov_j = covs[:, j]
+        is_new = ok & ~seen[j]
+        is_upd = ok & seen[j]
+
+        def keep():
+            return mu_j, cov_j, jnp.zeros_like(loglik)
+
+        def update():
+            upd = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_j, cov_j)
+            return upd.mean, upd.cov, upd.log_likelihood
+
+        def initialise():
+            mu, cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
+            return mu, cov, jnp.zeros_like(loglik)
+
+        # seen is shared by the particles, so one branch serves them all (skipped work at run time)
+        branch = jnp.where(is_new, 2, jnp.where(is_upd, 1, 0))
+        mu, cov, ll = jax.lax.switch(branch, (keep, update, initialise))
+        means = means.at[:, j].set(mu)
+        covs = covs.at[:, j].set(cov)
+        loglik = loglik + ll
+        seen = seen.at[j].set(seen[j] | ok)
+        return (means, covs, seen, loglik, num_new + is_new.astype(jnp.int32)), None
+
+    zero_ll = jnp.zeros(poses.shape[0], poses.dtype)
+    carry = (means, covs, seen, zero_ll, jnp.zeros((), jnp.int32))
+    (means, covs, seen, loglik, num_new), _ = jax.lax.scan(body, carry, (ids, obs.z, valid))
+    return means, covs, seen, loglik, num_new
+
+
+def _proposal(om, r, prior_mean, prior_cov, means, covs, seen, obs, valid, ids):
+    """FastSLAM 2.0 pose proposal of one particle: EKF updates of ``N(g(u, x), Q_t)`` by each
+    observation of an already-mapped landmark, noise ``R + H_m Σ_j H_mᵀ``.
+
+    Returns the proposal Gaussian and ``log N(z; ẑ, H_x Q_t H_xᵀ + H_m Σ H_mᵀ + R)`` summed (the weight).
+    """
+
+    def body(g, slot):
+        j, z, ok = slot
+        mu_j, cov_j = means[j], covs[j]
+        h_m = jax.jacfwd(lambda mu: om.mean(g.mean, mu))(mu_j)
+        q = r + h_m @ cov_j @ h_m.T
+        res = kalman.ekf_update(
+            g.mean, g.cov, z, lambda x: om.mean(x, mu_j), q,
+            valid=ok & seen[j], state_angle_dims=_POSE_ANGLE_DIMS, obs_angle_dims=om.angle_dims,
+        )
+        return kalman.Gaussian(res.mean, res.cov), res.log_likelihood
+
+    post, ll = jax.lax.scan(body, kalman.Gaussian(prior_mean, prior_cov), (ids, obs.z, valid))
+    return post, jnp.sum(ll)
+
+
+def _sample_gaussian(key, mean, cov):
+    chol = jnp.linalg.cholesky(kalman.ensure_pd(cov))
+    chol = jnp.where(jnp.all(jnp.isfinite(chol)), chol, jnp.diag(jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))))
+    x = mean + chol @ jax.random.normal(key, mean.shape, mean.dtype)
+    return x.at[2].set(weights.wrap_angle(x[2]))
+
+
+def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control, obs):
+    om = config.obs_model
+    model = get_motion_model(config.motion_model)
+    k_move, k_resample = jax.random.split(key)
+    r = om.noise_cov(params.sensor)
+    valid, ids, num_ignored = _slot_valid(obs, config.num_landmarks)
+
+    if config.version == 1:
+        poses = model.sample(k_move, state.poses, control, params.motion)
+        proposal_ll = jnp.zeros(poses.shape[0], poses.dtype)
+    else:
+        def propose(k, x, means, covs):
+            prior_mean = model.mean(x, control)
+            prior_cov = kalman.ensure_pd(model.process_cov(x, control, params.motion))
+            g, ll = _proposal(om, r, prior_mean, prior_cov, means, covs, state.seen, obs, valid, ids)
+            return _sample_gaussian(k, g.mean, g.cov), ll
+
+        keys = jax.random.split(k_move, config.num_particles)
+        poses, proposal_ll = jax.vmap(propose)(keys, state.poses, state.means, state.covs)
+
+    means, covs, seen, update_ll, num_new = _update_landmarks(
+        om, r, poses, state.means, state.covs, state.seen, obs, valid, ids
+    )
+    loglik = update_ll if config.version == 1 else proposal_ll
+    norm = weights.normalize(state.log_weights + loglik)
+    probs = jnp.exp(norm.log_weights)
+    estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
+    ess = weights.ess_from_probabilities(probs)
+    res = resampling.conditional_resample(
+        k_resample,
+        (poses, means, covs),
+        norm.log_weights,
+        threshold=config.ess_threshold,
+        scheme=config.resampling,
+        normalized=True,
+    )
+    poses, means, covs = res.particles
+    info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
+    return FastSLAMState(poses, res.log_weights, means, covs, seen), info
+
+
+_step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))
+
+
+def step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control, observation):
+    """One FastSLAM step (version from ``config``); validated on the host, then jitted.
+
+    ``state`` is *donated*: its buffers are reused for the new state (the
+    maps are updated in place rather than copied), so do not use the old
+    ``state`` after the call.
+    """
+    _validate_params(config, params)
+    _validate_state(config, state)
+    _validate_inputs(config, control, observation, time_axis=False)
+    return _step_jit(key, state, config, params, control, observation)
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _run_jit(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, state):
+    def body(carry, inputs):
+        t, u, z = inputs
+        return _step(jax.random.fold_in(key, t), carry, config, params, u, z)
+
+    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations))
+
+
+def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState):
+    """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
+
+    Returns ``(final_state, trace)``; ``trace.estimate`` is ``[T, 3]``. Use
+    :func:`map_estimate` on the final state for the map.
+    """
+    _validate_params(config, params)
+    _validate_state(config, initial_state)
+    _validate_inputs(config, controls, observations, time_axis=True)
+    return _run_jit(key, config, params, controls, observations, initial_state)
+
+
+@jax.jit
+def map_estimate(state: FastSLAMState) -> tuple[jax.Array, jax.Array]:
+    """Weighted mean landmark positions ``[M, D]`` over particles, and the ``seen`` mask."""
+    p = jnp.exp(state.log_weights)
+    return jnp.einsum("n,nmd->md", p, state.means), state.seen

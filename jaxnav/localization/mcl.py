@@ -140,13 +140,22 @@ class MCLInfo(NamedTuple):
 
 
 def _validate_params(config: MCLConfig, params: MCLParams) -> None:
-    model = get_motion_model(config.motion_model)
     if not isinstance(params, MCLParams):
         raise ValueError(f"params must be an MCLParams, got {type(params).__name__}")
+    validate_model_params(config.motion_model, params)
+
+
+def validate_model_params(motion_model: str, params: Any) -> None:
+    """Host-side check of the fields ``motion``, ``sensor`` and ``landmarks`` of ``params``.
+
+    Shared by the MCL variants (augmented, KLD), whose params carry these
+    three fields plus their own.
+    """
+    model = get_motion_model(motion_model)
     if not isinstance(params.motion, model.noise_type):
         raise ValueError(
             f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{config.motion_model!r}, got {type(params.motion).__name__}"
+            f"{motion_model!r}, got {type(params.motion).__name__}"
         )
     model.validate(params.motion)
     lm.validate_noise(params.sensor)
@@ -162,7 +171,12 @@ def _validate_state(config: MCLConfig, state: MCLState) -> None:
 
 
 def _validate_inputs(config: MCLConfig, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    dim = get_motion_model(config.motion_model).control_dim
+    validate_inputs(config.motion_model, controls, obs, time_axis)
+
+
+def validate_inputs(motion_model: str, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
+    """Host-side check of one step's (or, with ``time_axis``, a sequence's) controls and observations."""
+    dim = get_motion_model(motion_model).control_dim
     check_shape("controls" if time_axis else "control", controls, ((None,) if time_axis else ()) + (dim,))
     check_finite("controls" if time_axis else "control", controls)
     if not isinstance(obs, lm.RangeBearingObs):
@@ -235,6 +249,49 @@ def _uniform(n: int, dtype: Any) -> jax.Array:
 # step and run
 
 
+class Weighted(NamedTuple):
+    """Output of :func:`move_and_weight` (lines 3–4 of [A] Alg. 3).
+
+    Attributes:
+        particles: ``[N, 3]`` moved poses.
+        norm: :class:`jaxnav.core.weights.Normalized` of ``log w̄_{t−1} + log p(z_t | x_t)``;
+            ``norm.log_norm`` is the log marginal-likelihood increment.
+        probs: ``[N]`` ``exp(norm.log_weights)``.
+        num_ignored: int32, observation slots whose id is not in the map.
+    """
+
+    particles: jax.Array
+    norm: weights.Normalized
+    probs: jax.Array
+    num_ignored: jax.Array
+
+
+def move_and_weight(
+    key: jax.Array,
+    particles: jax.Array,
+    log_weights: jax.Array,
+    motion_model: str,
+    params: Any,
+    control: jax.Array,
+    obs: lm.RangeBearingObs,
+) -> Weighted:
+    """Move ``particles [N, 3]`` by a draw of ``motion_model`` and weight them by ``obs``.
+
+    ``log_weights`` must be normalised (entries of ``-inf`` stay ``-inf``:
+    masked particles keep zero weight). ``params`` needs the fields
+    ``motion``, ``sensor`` and ``landmarks``. Shared by MCL and its augmented
+    and KLD-sampling variants; traceable, not jitted on its own.
+    """
+    model = get_motion_model(motion_model)
+    moved = model.sample(key, particles, control, params.motion)
+    positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
+    loglik = lm.log_likelihood(moved, positions, obs.z, valid, params.sensor)
+    # log_weights is normalised, so the normaliser of the product is the
+    # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
+    norm = weights.normalize(log_weights + loglik)
+    return Weighted(moved, norm, jnp.exp(norm.log_weights), num_ignored)
+
+
 def _step(
     key: jax.Array,
     state: MCLState,
@@ -243,16 +300,9 @@ def _step(
     control: jax.Array,
     obs: lm.RangeBearingObs,
 ) -> tuple[MCLState, MCLInfo]:
-    model = get_motion_model(config.motion_model)
     k_move, k_resample = jax.random.split(key)
-    particles = model.sample(k_move, state.particles, control, params.motion)
-
-    positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
-    loglik = lm.log_likelihood(particles, positions, obs.z, valid, params.sensor)
-    # state.log_weights is normalised, so the normaliser of the product is the
-    # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
-    norm = weights.normalize(state.log_weights + loglik)
-    probs = jnp.exp(norm.log_weights)
+    w = move_and_weight(k_move, state.particles, state.log_weights, config.motion_model, params, control, obs)
+    particles, norm, probs, num_ignored = w.particles, w.norm, w.probs, w.num_ignored
 
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
     ess = weights.ess_from_probabilities(probs)

@@ -165,18 +165,71 @@ def _wrap(x: jax.Array, angle_dims: tuple[int, ...]) -> jax.Array:
     return x
 
 
+_UNROLL_MAX = 4  # factorise m × m matrices up to this size with unrolled scalar code
+
+
 def _cholesky(cov: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Cholesky factor and a failure flag; on failure the jittered diagonal's square root."""
-    chol = jnp.linalg.cholesky(cov)
+    """Lower Cholesky factor and a failure flag; on failure the jittered diagonal's square root.
+
+    Matrices up to 4 × 4 (innovation covariances, landmark and pose
+    covariances) are factorised by unrolled scalar code instead of LAPACK's
+    ``potrf``: XLA:CPU cannot fuse that custom call and, under ``vmap``, runs
+    it once per batch element, which made it the largest cost of a batched
+    Kalman update (benchmark W4).
+    """
+    m = cov.shape[-1]
+    if m > _UNROLL_MAX:
+        chol = jnp.linalg.cholesky(cov)
+    else:
+        low = [[jnp.zeros((), cov.dtype)] * m for _ in range(m)]
+        for j in range(m):
+            d = cov[j, j]
+            for k in range(j):
+                d = d - low[j][k] * low[j][k]
+            low[j][j] = jnp.sqrt(d)
+            for i in range(j + 1, m):
+                v = cov[i, j]
+                for k in range(j):
+                    v = v - low[i][k] * low[j][k]
+                low[i][j] = v / low[j][j]
+        chol = jnp.stack([jnp.stack(row) for row in low])
     failed = ~jnp.all(jnp.isfinite(chol))
     fallback = jnp.diag(jnp.sqrt(jnp.maximum(jnp.diagonal(cov), DEFAULT_JITTER)))
     return jnp.where(failed, fallback, chol), failed
 
 
+def _solve_lower(chol: jax.Array, rhs: jax.Array) -> jax.Array:
+    """``L⁻¹ rhs`` for ``rhs [m]`` or ``[m, k]`` (forward substitution, unrolled for small m)."""
+    m = chol.shape[-1]
+    if m > _UNROLL_MAX:
+        return jax.scipy.linalg.solve_triangular(chol, rhs, lower=True)
+    rows: list[jax.Array] = []
+    for i in range(m):
+        v = rhs[i]
+        for k in range(i):
+            v = v - chol[i, k] * rows[k]
+        rows.append(v / chol[i, i])
+    return jnp.stack(rows)
+
+
+def _solve_upper_t(chol: jax.Array, rhs: jax.Array) -> jax.Array:
+    """``L⁻ᵀ rhs`` (back substitution, unrolled for small m)."""
+    m = chol.shape[-1]
+    if m > _UNROLL_MAX:
+        return jax.scipy.linalg.solve_triangular(chol.T, rhs, lower=False)
+    rows: list[jax.Array | None] = [None] * m
+    for i in reversed(range(m)):
+        v = rhs[i]
+        for k in range(i + 1, m):
+            v = v - chol[k, i] * rows[k]
+        rows[i] = v / chol[i, i]
+    return jnp.stack(rows)
+
+
 def gaussian_log_pdf(residual: jax.Array, cov: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``(log N(residual; 0, cov), residualᵀ cov⁻¹ residual)`` via a Cholesky solve."""
     chol, _ = _cholesky(cov)
-    white = jax.scipy.linalg.solve_triangular(chol, residual, lower=True)
+    white = _solve_lower(chol, residual)
     maha = jnp.sum(white * white)
     log_det = 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol)))
     return -0.5 * (maha + log_det + residual.shape[-1] * math.log(2.0 * math.pi)), maha
@@ -185,7 +238,19 @@ def gaussian_log_pdf(residual: jax.Array, cov: jax.Array) -> tuple[jax.Array, ja
 def _gain(cross: jax.Array, innovation_cov: jax.Array) -> jax.Array:
     """Kalman gain ``K = C S⁻¹`` for a cross covariance ``C [n, m]`` (a solve, not an inverse)."""
     chol, _ = _cholesky(innovation_cov)
-    return jax.scipy.linalg.cho_solve((chol, True), cross.T).T
+    return _solve_upper_t(chol, _solve_lower(chol, cross.T)).T
+
+
+def _joseph(cov: jax.Array, gain: jax.Array, jac: jax.Array, noise_cov: jax.Array) -> jax.Array:
+    """Joseph form ``(I − KH) P (I − KH)ᵀ + K R Kᵀ``, reassociated.
+
+    Evaluated as ``M = P − K (H P)``, ``M − (M Hᵀ) Kᵀ + K R Kᵀ`` — the same
+    expression for any gain — so that no ``n × n`` by ``n × n`` product is
+    formed: under ``vmap`` XLA:CPU hands each tiny batched matrix product to
+    its thread pool at about a microsecond per batch element (W4).
+    """
+    m_ = cov - gain @ (jac @ cov)
+    return ensure_pd(m_ - (m_ @ jac.T) @ gain.T + gain @ noise_cov @ gain.T)
 
 
 def _select(accept: jax.Array, new: Gaussian, old: Gaussian) -> Gaussian:
@@ -241,11 +306,7 @@ def ekf_update(
     s = symmetrize(jac @ cov @ jac.T + noise_cov)
     log_lik, nis = gaussian_log_pdf(y, s)
     gain = _gain(cov @ jac.T, s)
-    i_kh = jnp.eye(mean.shape[-1], dtype=cov.dtype) - gain @ jac
-    new = Gaussian(
-        _wrap(mean + gain @ y, state_angle_dims),
-        ensure_pd(i_kh @ cov @ i_kh.T + gain @ noise_cov @ gain.T),
-    )
+    new = Gaussian(_wrap(mean + gain @ y, state_angle_dims), _joseph(cov, gain, jac, noise_cov))
     accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
     post = _select(accepted, new, Gaussian(mean, cov))
     zero = jnp.zeros((), cov.dtype)

@@ -2,6 +2,8 @@
 
 * :func:`position_errors`, :func:`trajectory_rmse` — pose estimates ``[T, 3]``
   against the truth (heading residual wrapped).
+* :func:`absolute_trajectory_error` — position RMSE after the best rigid
+  alignment of the whole path (the ATE of Sturm et al., IROS 2012);
 * :func:`align_rigid` — the least-squares rotation and translation taking one
   2-D point set onto another (Umeyama 1991 without scale; Horn 1987), and
   :func:`map_errors` — landmark errors raw and after that alignment. A SLAM
@@ -20,7 +22,15 @@ import numpy as np
 from jaxnav.core.validation import check_shape
 from jaxnav.core.weights import wrap_angle
 
-__all__ = ["TrajectoryError", "MapError", "position_errors", "trajectory_rmse", "align_rigid", "map_errors"]
+__all__ = [
+    "TrajectoryError",
+    "MapError",
+    "position_errors",
+    "trajectory_rmse",
+    "absolute_trajectory_error",
+    "align_rigid",
+    "map_errors",
+]
 
 
 class TrajectoryError(NamedTuple):
@@ -121,3 +131,18 @@ def map_errors(estimate: jax.Array, truth: jax.Array, mask: jax.Array | None = N
     raw = jnp.sqrt(jnp.sum(w * jnp.sum((estimate - truth) ** 2, axis=-1)) / n)
     al = jnp.sqrt(jnp.sum(w * jnp.sum((aligned - truth) ** 2, axis=-1)) / n)
     return MapError(raw, al, rot, trans)
+
+
+def absolute_trajectory_error(estimates: jax.Array, truth: jax.Array) -> jax.Array:
+    """Position RMSE (m) after rigidly aligning the estimated path to the true one (ATE, Sturm et al. 2012).
+
+    A SLAM estimate that has the right shape in a rotated frame scores low
+    here and high in :func:`trajectory_rmse`; a localization filter with a
+    known map should score about the same in both.
+    """
+    check_shape("estimates", estimates, (None, 3))
+    check_shape("truth", truth, np.shape(estimates))
+    est, tru = jnp.asarray(estimates)[:, :2], jnp.asarray(truth)[:, :2]
+    rot, trans = align_rigid(est, tru)
+    d = est @ rot.T + trans - tru
+    return jnp.sqrt(jnp.mean(jnp.sum(d * d, axis=-1)))

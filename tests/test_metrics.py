@@ -39,3 +39,17 @@ def test_reflection_is_not_allowed():
     err = metrics.map_errors(mirrored, truth)
     assert float(err.aligned_rmse) > 0.5
     assert np.linalg.det(np.asarray(err.rotation)) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_absolute_trajectory_error_removes_only_a_rigid_motion():
+    t = np.linspace(0, 2 * np.pi, 50)
+    truth = np.stack([3 * np.cos(t), 2 * np.sin(t), t], axis=-1)
+    th = 0.5
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    rotated = truth.copy()
+    rotated[:, :2] = truth[:, :2] @ rot.T + np.array([0.3, -0.2])
+    assert float(metrics.trajectory_rmse(rotated, truth).position_rmse) > 0.5
+    assert float(metrics.absolute_trajectory_error(rotated, truth)) < 1e-5
+    bent = truth.copy()
+    bent[25:, 0] += 0.4  # not a rigid motion: half the path shifted
+    assert float(metrics.absolute_trajectory_error(bent, truth)) > 0.1

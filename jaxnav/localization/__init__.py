@@ -9,6 +9,7 @@
 
 from jaxnav.localization import augmented_mcl as augmented_mcl
 from jaxnav.localization import ekf as ekf
+from jaxnav.localization import grid as grid
 from jaxnav.localization import kld_mcl as kld_mcl
 from jaxnav.localization import mcl as mcl
 from jaxnav.localization import ukf as ukf

@@ -224,3 +224,28 @@ def test_bad_input_and_single_compilation(getkey):
     before = fs._run_jit._cache_size()
     fs.run(getkey(), cfg, PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations, state)
     assert fs._run_jit._cache_size() == before
+
+
+def test_in_place_map_copy_equals_gather(getkey, monkeypatch):
+    """Large maps (≥ IN_PLACE_MIN_FLOATS floats per particle) are resampled by the in-place row
+    copy; the step's result must equal the plain-gather path bit for bit (same key, same state)."""
+    m = 600  # 600 · 6 floats per particle ≥ 3072: the in-place path
+    cfg = fs.FastSLAMConfig(num_particles=24, num_landmarks=m)
+    rng = np.random.default_rng(0)
+    means = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
+    state = fs.init(getkey(), cfg, PARAMS, X0, jnp.asarray([0.05, 0.05, 0.02]), landmark_means=means)
+    # give every particle a different map so that a wrong copy shows
+    state = state._replace(means=state.means + jnp.asarray(rng.normal(0, 0.05, state.means.shape), jnp.float32))
+    ids = jnp.asarray([3, 77, 500, 599, 3], jnp.int32)
+    z = jax.vmap(lambda mu: lm.predict(X0, mu))(means[ids])
+    obs = lm.RangeBearingObs(ids, z, jnp.ones(5, bool))
+    key, control = getkey(), jnp.asarray([0.3, 0.1, 0.25])
+    step = lambda: jax.jit(fs._step, static_argnames="config")(key, state, cfg, PARAMS, control, obs)  # noqa: E731
+    in_place, info = step()
+    assert bool(info.resampled)
+    ancestors_moved = not np.array_equal(np.asarray(in_place.means), np.asarray(state.means))
+    monkeypatch.setattr(fs, "IN_PLACE_MIN_FLOATS", 10**9)
+    gathered, _ = step()
+    for a, b in zip(in_place, gathered):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert ancestors_moved

@@ -438,3 +438,21 @@ def test_gaussian_refresh_collapsed_cloud_has_no_nan(jitter, getkey):
     # 6 sd of the jitter, plus float32 round-off of the weighted mean of n
     # equal values (recursive-summation bound (n + 2)·eps·|x|).
     assert np.all(np.abs(diff) < 6 * math.sqrt(jitter) + (n + 2) * EPS32 * np.abs(point).max())
+
+
+@pytest.mark.parametrize("scheme", ["systematic", "stratified"])
+def test_copy_ancestors_in_place_equals_take(scheme):
+    """For the sorted ancestors of systematic/stratified resampling the in-place row copy
+    equals ``x[ancestors]``; unsorted ancestors (residual) are outside its contract."""
+    from jaxnav.core.resampling import SORTED_SCHEMES, copy_ancestors_in_place, get_resampler
+
+    assert scheme in SORTED_SCHEMES
+    rng = np.random.default_rng(1)
+    x = jnp.asarray(rng.normal(size=(50, 7)), jnp.float32)
+    y = jnp.asarray(rng.normal(size=(50, 2, 2)), jnp.float32)
+    logw = jnp.asarray(rng.normal(0, 2, 50), jnp.float32)
+    idx = get_resampler(scheme)(jax.random.PRNGKey(3), logw, 50)
+    assert np.all(np.diff(np.asarray(idx)) >= 0)
+    a, b = jax.jit(copy_ancestors_in_place)((x, y), idx)
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(x)[np.asarray(idx)])
+    np.testing.assert_array_equal(np.asarray(b), np.asarray(y)[np.asarray(idx)])

@@ -33,7 +33,9 @@ One step:
    step resets to uniform and is flagged.
 4. **Resampling** (conditional on the ESS; every step by default, as [A]
    Alg. 5) copies every chosen particle's *whole map*: ``O(N·M)`` memory
-   traffic, the cost of FastSLAM that benchmark W3 measures.
+   traffic, the cost of FastSLAM that benchmark W3 measures. Large maps are
+   copied in place (sorted ancestors of systematic/stratified resampling),
+   so a jitted ``step`` with donated state moves each map once.
 
 Observation models
 ------------------
@@ -90,6 +92,12 @@ __all__ = [
 ]
 
 _POSE_ANGLE_DIMS = (2,)
+
+IN_PLACE_MIN_FLOATS = 3072
+"""Map size per particle (floats, ``M · (D + D²)``) from which resampling copies maps in place.
+
+Below it ``jnp.take`` is faster than the row-copy loop of
+:func:`jaxnav.core.resampling.copy_ancestors_in_place` (benchmark W3)."""
 
 
 class ObservationModel(NamedTuple):
@@ -441,15 +449,29 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
     ess = weights.ess_from_probabilities(probs)
     res = resampling.conditional_resample(
         k_resample,
-        (poses, means, covs),
+        poses,
         norm.log_weights,
         threshold=config.ess_threshold,
         scheme=config.resampling,
         normalized=True,
     )
-    poses, means, covs = res.particles
+    means, covs = _copy_maps(means, covs, res.ancestors, config.resampling)
+    poses = res.particles
     info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
+
+
+def _copy_maps(means, covs, ancestors, scheme: str):
+    """Every particle takes its ancestor's map: the O(N·M) copy of [A] Alg. 5's resampling.
+
+    Large maps with sorted ancestors are copied in place
+    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`); ``ancestors = arange`` (no
+    resampling) copies nothing.
+    """
+    row = int(np.prod(means.shape[1:])) + int(np.prod(covs.shape[1:]))
+    if scheme in resampling.SORTED_SCHEMES and row >= IN_PLACE_MIN_FLOATS:
+        return resampling.copy_ancestors_in_place((means, covs), ancestors)
+    return jnp.take(means, ancestors, axis=0), jnp.take(covs, ancestors, axis=0)
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))

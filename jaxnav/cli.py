@@ -7,7 +7,7 @@ import sys
 
 from jaxnav._version import __version__
 
-# kept here so that `jaxnav --help` does not import JAX
+# the help text lists these without importing the experiment; tests/test_cli.py checks they match
 _MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
 
 

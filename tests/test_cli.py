@@ -37,3 +37,10 @@ def test_demo_rejects_bad_arguments(tmp_path):
     out = _jaxnav("demo", "--steps", "0", "--out", "", cwd=tmp_path)
     assert out.returncode == 2
     assert "--steps and --particles must be positive" in out.stderr
+
+
+def test_mrclam_algorithm_list_matches_the_experiment():
+    from jaxnav.cli import _MRCLAM_ALGORITHMS
+    from jaxnav.experiments.mrclam import ALGORITHMS
+
+    assert _MRCLAM_ALGORITHMS == ALGORITHMS

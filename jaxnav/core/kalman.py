@@ -253,8 +253,18 @@ def _joseph(cov: jax.Array, gain: jax.Array, jac: jax.Array, noise_cov: jax.Arra
     return ensure_pd(m_ - (m_ @ jac.T) @ gain.T + gain @ noise_cov @ gain.T)
 
 
-def _select(accept: jax.Array, new: Gaussian, old: Gaussian) -> Gaussian:
-    return Gaussian(jnp.where(accept, new.mean, old.mean), jnp.where(accept, new.cov, old.cov))
+def _result(prior: Gaussian, posterior: Gaussian, valid, gate, nis, log_lik, cholesky_failed) -> UpdateResult:
+    """Keep the posterior only for a valid observation that passes the gate; report why."""
+    accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
+    zero = jnp.zeros((), prior.cov.dtype)
+    return UpdateResult(
+        jnp.where(accepted, posterior.mean, prior.mean),
+        jnp.where(accepted, posterior.cov, prior.cov),
+        jnp.where(valid, nis, zero),
+        jnp.where(accepted, log_lik, zero),
+        accepted,
+        cholesky_failed,
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -307,17 +317,7 @@ def ekf_update(
     log_lik, nis = gaussian_log_pdf(y, s)
     gain = _gain(cov @ jac.T, s)
     new = Gaussian(_wrap(mean + gain @ y, state_angle_dims), _joseph(cov, gain, jac, noise_cov))
-    accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
-    post = _select(accepted, new, Gaussian(mean, cov))
-    zero = jnp.zeros((), cov.dtype)
-    return UpdateResult(
-        post.mean,
-        post.cov,
-        jnp.where(valid, nis, zero),
-        jnp.where(accepted, log_lik, zero),
-        accepted,
-        jnp.zeros((), bool),
-    )
+    return _result(Gaussian(mean, cov), new, valid, gate, nis, log_lik, jnp.zeros((), bool))
 
 
 def _sequential(update: Callable[..., UpdateResult]):
@@ -458,17 +458,7 @@ def ukf_update(
     log_lik, nis = gaussian_log_pdf(y, s)
     gain = _gain(cross, s)
     new = Gaussian(_wrap(mean + gain @ y, state_angle_dims), ensure_pd(cov - gain @ s @ gain.T))
-    accepted = jnp.asarray(valid) & (True if gate is None else nis <= gate)
-    post = _select(accepted, new, Gaussian(mean, cov))
-    zero = jnp.zeros((), cov.dtype)
-    return UpdateResult(
-        post.mean,
-        post.cov,
-        jnp.where(valid, nis, zero),
-        jnp.where(accepted, log_lik, zero),
-        accepted,
-        failed & jnp.asarray(valid),
-    )
+    return _result(Gaussian(mean, cov), new, valid, gate, nis, log_lik, failed & jnp.asarray(valid))
 
 
 def ukf_update_sequential(

@@ -94,7 +94,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core.validation import check_finite, check_positive_int, check_shape
-from jaxnav.core.weights import wrap_angle
 from jaxnav.metrics import TrajectoryError, position_errors, trajectory_rmse  # re-exported: scoring lives in jaxnav.metrics
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
@@ -108,6 +107,7 @@ __all__ = [
     "LandmarkMap",
     "MRCLAMRobot",
     "MRCLAMSequence",
+    "TrajectoryError",
     "data_dir",
     "available_robots",
     "load_robot",

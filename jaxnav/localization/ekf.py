@@ -41,6 +41,7 @@ from jaxnav.core import kalman
 from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.localization.mcl import validate_model_params
 
 __all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "step", "run"]
 
@@ -127,20 +128,9 @@ class KalmanInfo(NamedTuple):
 
 def validate_params(config: Any, params: KalmanParams) -> None:
     """Host-side checks of :class:`KalmanParams` against ``config.motion_model``."""
-    model = get_motion_model(config.motion_model)
     if not isinstance(params, KalmanParams):
         raise ValueError(f"params must be a KalmanParams, got {type(params).__name__}")
-    if not isinstance(params.motion, model.noise_type):
-        raise ValueError(
-            f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{config.motion_model!r}, got {type(params.motion).__name__}"
-        )
-    model.validate(params.motion)
-    lm.validate_noise(params.sensor)
-    check_shape("params.landmarks", params.landmarks, (None, 2))
-    if np.shape(params.landmarks)[0] < 1:
-        raise ValueError("params.landmarks must hold at least one landmark")
-    check_finite("params.landmarks", params.landmarks)
+    validate_model_params(config.motion_model, params)
 
 
 def validate_state(state: KalmanState) -> None:

@@ -126,6 +126,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.localization.mcl import validate_model_params
 
 __all__ = [
     "GridConfig",
@@ -493,20 +494,9 @@ def _log_likelihood(config: GridConfig, params: GridParams, obs: lm.RangeBearing
 def _validate_params(config: GridConfig, params: GridParams) -> None:
     if not isinstance(config, GridConfig):
         raise ValueError(f"config must be a GridConfig, got {type(config).__name__}")
-    model = get_motion_model(config.motion_model)
     if not isinstance(params, GridParams):
         raise ValueError(f"params must be a GridParams, got {type(params).__name__}")
-    if not isinstance(params.motion, model.noise_type):
-        raise ValueError(
-            f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{config.motion_model!r}, got {type(params.motion).__name__}"
-        )
-    model.validate(params.motion)
-    lm.validate_noise(params.sensor)
-    check_shape("params.landmarks", params.landmarks, (None, 2))
-    if np.shape(params.landmarks)[0] < 1:
-        raise ValueError("params.landmarks must hold at least one landmark")
-    check_finite("params.landmarks", params.landmarks)
+    validate_model_params(config.motion_model, params)
 
 
 def _validate_state(config: GridConfig, state: GridState) -> None:

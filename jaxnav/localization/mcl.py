@@ -52,10 +52,10 @@ from jaxnav.core.validation import (
     check_positive_int,
     check_shape,
     check_nonnegative,
-    is_concrete,
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = ["MCLConfig", "MCLParams", "MCLState", "MCLInfo", "init", "init_uniform", "step", "run"]
 
@@ -151,13 +151,7 @@ def validate_model_params(motion_model: str, params: Any) -> None:
     Shared by the MCL variants (augmented, KLD), whose params carry these
     three fields plus their own.
     """
-    model = get_motion_model(motion_model)
-    if not isinstance(params.motion, model.noise_type):
-        raise ValueError(
-            f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{motion_model!r}, got {type(params.motion).__name__}"
-        )
-    model.validate(params.motion)
+    validate_motion_noise(motion_model, params.motion)
     lm.validate_noise(params.sensor)
     check_shape("params.landmarks", params.landmarks, (None, 2))
     if np.shape(params.landmarks)[0] < 1:

@@ -66,6 +66,7 @@ __all__ = [
     "omni_body_process_cov",
     "MODELS",
     "get_motion_model",
+    "validate_noise",
 ]
 
 
@@ -366,3 +367,17 @@ def get_motion_model(name: str) -> MotionModel:
         return MODELS[name]
     except KeyError:
         raise ValueError(f"motion model {name!r} is unknown; choose one of {sorted(MODELS)}") from None
+
+
+def validate_noise(name: str, params: object, argument: str = "params.motion") -> None:
+    """Host-side check that ``params`` is the noise type of motion model ``name`` and is valid.
+
+    Raises ``ValueError`` naming ``argument``, the model and the expected type.
+    """
+    model = get_motion_model(name)
+    if not isinstance(params, model.noise_type):
+        raise ValueError(
+            f"{argument} must be a {model.noise_type.__name__} for motion model {name!r}, got {type(params).__name__}"
+        )
+    model.validate(params)
+

@@ -102,6 +102,7 @@ from jaxnav.core.weights import wrap_angle
 from jaxnav.localization.ekf import scan_steps, validate_inputs
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = [
     "EKFSLAMConfig",
@@ -220,13 +221,7 @@ def validate_params(config: EKFSLAMConfig, params: EKFSLAMParams) -> None:
         raise ValueError(f"config must be an EKFSLAMConfig, got {type(config).__name__}")
     if not isinstance(params, EKFSLAMParams):
         raise ValueError(f"params must be an EKFSLAMParams, got {type(params).__name__}")
-    model = get_motion_model(config.motion_model)
-    if not isinstance(params.motion, model.noise_type):
-        raise ValueError(
-            f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{config.motion_model!r}, got {type(params.motion).__name__}"
-        )
-    model.validate(params.motion)
+    validate_motion_noise(config.motion_model, params.motion)
     lm.validate_noise(params.sensor)
 
 

@@ -77,6 +77,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = [
     "ObservationModel",
@@ -233,13 +234,7 @@ class FastSLAMInfo(NamedTuple):
 def _validate_params(config: FastSLAMConfig, params: FastSLAMParams) -> None:
     if not isinstance(params, FastSLAMParams):
         raise ValueError(f"params must be a FastSLAMParams, got {type(params).__name__}")
-    model = get_motion_model(config.motion_model)
-    if not isinstance(params.motion, model.noise_type):
-        raise ValueError(
-            f"params.motion must be a {model.noise_type.__name__} for motion model "
-            f"{config.motion_model!r}, got {type(params.motion).__name__}"
-        )
-    model.validate(params.motion)
+    validate_motion_noise(config.motion_model, params.motion)
     config.obs_model.validate(params.sensor)
 
 

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["monte_carlo", "run_keys"]
+__all__ = ["monte_carlo", "run_keys", "scan_filter"]
 
 
 def run_keys(key: jax.Array, num_runs: int) -> jax.Array:
@@ -96,3 +96,22 @@ def _pad_slice(x: Any, start: int, stop: int, size: int) -> jax.Array:
         return part
     pad = jnp.repeat(part[-1:], missing, axis=0)
     return jnp.concatenate([part, pad], axis=0)
+
+
+def scan_filter(step: Callable, config: Any, params: Any, controls: jax.Array, observations: Any, state: Any,
+                key: jax.Array | None = None) -> tuple[Any, Any]:
+    """Every filter's ``run``: one ``lax.scan`` of ``step`` over time.
+
+    With a ``key``, step ``t`` is ``step(fold_in(key, t), state, config, params, u_t, z_t)`` (so a
+    Python loop of ``step`` calls with those keys reproduces the scan); without one the filter is
+    deterministic and ``step(state, config, params, u_t, z_t)``. Returns ``(final_state, trace)``.
+    """
+    if key is None:
+        return jax.lax.scan(lambda s, x: step(s, config, params, *x), state, (controls, observations))
+
+    def body(carry, inputs):
+        t, u, z = inputs
+        return step(jax.random.fold_in(key, t), carry, config, params, u, z)
+
+    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations))
+

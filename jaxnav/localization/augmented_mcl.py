@@ -80,6 +80,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.batch import scan_filter
 from jaxnav.core import resampling, weights
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
@@ -364,12 +365,7 @@ def _run_jit(
     observations: lm.RangeBearingObs,
     state: AugmentedMCLState,
 ) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
-    def body(carry, inputs):
-        t, u, z = inputs
-        return _step(jax.random.fold_in(key, t), carry, config, params, u, z)
-
-    steps = jnp.arange(controls.shape[0])
-    return jax.lax.scan(body, state, (steps, controls, observations))
+    return scan_filter(_step, config, params, controls, observations, state, key)
 
 
 def run(

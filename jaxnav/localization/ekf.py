@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import kalman
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
@@ -228,14 +229,9 @@ def step(
     return _step_jit(state, config, params, control, observation)
 
 
-def scan_steps(step_fn: Callable, config: Any, params: KalmanParams, controls, observations, state):
-    """``lax.scan`` of ``step_fn(state, config, params, u, z)`` over time (shared with ukf)."""
-    return jax.lax.scan(lambda s, x: step_fn(s, config, params, *x), state, (controls, observations))
-
-
 @partial(jax.jit, static_argnames=("config",))
 def _run_jit(config: EKFConfig, params: KalmanParams, controls, observations, state):
-    return scan_steps(_step, config, params, controls, observations, state)
+    return scan_filter(_step, config, params, controls, observations, state)
 
 
 def run(

@@ -115,6 +115,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import erfc, logsumexp
 
+from jaxnav.core.batch import scan_filter
 from jaxnav.core import weights
 from jaxnav.core.validation import (
     check_choice,
@@ -650,11 +651,7 @@ def _run_jit(
     observations: lm.RangeBearingObs,
     state: GridState,
 ) -> tuple[GridState, GridInfo]:
-    def body(carry, inputs):
-        u, z = inputs
-        return _step(carry, config, params, u, z)
-
-    return jax.lax.scan(body, state, (controls, observations))
+    return scan_filter(_step, config, params, controls, observations, state)
 
 
 def run(

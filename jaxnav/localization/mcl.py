@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.batch import scan_filter
 from jaxnav.core import resampling, weights
 from jaxnav.core.validation import (
     check_choice,
@@ -345,12 +346,7 @@ def _run_jit(
     observations: lm.RangeBearingObs,
     state: MCLState,
 ) -> tuple[MCLState, MCLInfo]:
-    def body(carry, inputs):
-        t, u, z = inputs
-        return _step(jax.random.fold_in(key, t), carry, config, params, u, z)
-
-    steps = jnp.arange(controls.shape[0])
-    return jax.lax.scan(body, state, (steps, controls, observations))
+    return scan_filter(_step, config, params, controls, observations, state, key)
 
 
 def run(

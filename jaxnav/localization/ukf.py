@@ -29,6 +29,7 @@ from functools import partial
 import jax
 
 from jaxnav.core import kalman
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice
 from jaxnav.localization import ekf
 from jaxnav.localization.ekf import KalmanInfo, KalmanParams, KalmanState
@@ -101,7 +102,7 @@ def step(
 
 @partial(jax.jit, static_argnames=("config",))
 def _run_jit(config: UKFConfig, params: KalmanParams, controls, observations, state):
-    return ekf.scan_steps(_step, config, params, controls, observations, state)
+    return scan_filter(_step, config, params, controls, observations, state)
 
 
 def run(

@@ -99,7 +99,8 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.core.weights import wrap_angle
-from jaxnav.localization.ekf import scan_steps, validate_inputs
+from jaxnav.core.batch import scan_filter
+from jaxnav.localization.ekf import validate_inputs
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
@@ -465,7 +466,7 @@ def step(
 
 @partial(jax.jit, static_argnames=("config",))
 def _run_jit(config: EKFSLAMConfig, params: EKFSLAMParams, controls, observations, state):
-    return scan_steps(_step, config, params, controls, observations, state)
+    return scan_filter(_step, config, params, controls, observations, state)
 
 
 def run(

@@ -66,6 +66,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.batch import scan_filter
 from jaxnav.core import kalman, resampling, weights
 from jaxnav.core.validation import (
     check_choice,
@@ -487,11 +488,7 @@ def step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPara
 
 @partial(jax.jit, static_argnames=("config",))
 def _run_jit(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, state):
-    def body(carry, inputs):
-        t, u, z = inputs
-        return _step(jax.random.fold_in(key, t), carry, config, params, u, z)
-
-    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations))
+    return scan_filter(_step, config, params, controls, observations, state, key)
 
 
 def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState):

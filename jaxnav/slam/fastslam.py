@@ -42,8 +42,10 @@ Observation models
 :class:`ObservationModel` packs ``mean(pose, landmark) -> z``,
 ``inverse(pose, z) -> landmark``, ``noise_cov(sensor_params) -> R`` and the
 circular components of ``z``. :data:`RANGE_BEARING` is the point-landmark
-model of :mod:`jaxnav.models.landmarks`; the HF-RFID and other sensors plug
-in by passing their own :class:`ObservationModel` as ``config.observation_model``.
+model of :mod:`jaxnav.models.landmarks`; :data:`HF_FOOTPRINT` is the HF-RFID
+reader detection with its footprint as a Gaussian ([W] §3.2, the FastSLAM
+baseline of [W] ch. 3–4). Other sensors plug in by passing their own
+:class:`ObservationModel` as ``config.observation_model``.
 Observations are fixed-slot arrays with fields ``ids [K]`` (landmark slot),
 ``z [K, dz]`` and ``mask [K]`` (e.g. :class:`~jaxnav.models.landmarks.RangeBearingObs`);
 masked slots and ids outside ``[0, M)`` are ignored, the latter counted.
@@ -76,6 +78,7 @@ from jaxnav.core.validation import (
     check_positive_int,
     check_shape,
 )
+from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
@@ -83,6 +86,8 @@ from jaxnav.models.motion import validate_noise as validate_motion_noise
 __all__ = [
     "ObservationModel",
     "RANGE_BEARING",
+    "HF_FOOTPRINT",
+    "OBSERVATION_MODELS",
     "FastSLAMConfig",
     "FastSLAMParams",
     "FastSLAMState",
@@ -133,7 +138,15 @@ def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
 RANGE_BEARING = ObservationModel(
     "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
 )
-OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING}
+HF_FOOTPRINT = ObservationModel(
+    "hf_footprint", 2, 2, hf_rfid.robot_frame, hf_rfid.world_frame, hf_rfid.footprint_cov, (), hf_rfid.validate_params
+)
+"""The HF-RFID detection as a Gaussian measurement (SPEC §3, [W] §3.2): ``z`` = the detecting reader's
+position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
+Sensor params: :class:`jaxnav.models.hf_rfid.HFReaderParams`; observations:
+:func:`jaxnav.models.hf_rfid.landmark_observations` of the detections."""
+
+OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,256 @@
+"""HF-RFID reader arrays and the detection model of [W] eq. 3.7.
+
+Overview
+--------
+``B`` HF readers sit under the robot ([W] §3.1, Fig. 3.2c), reader ``b`` at
+``offsets[b]`` in the robot frame (x forward, y left, metres). A reader
+detects a floor tag when the tag lies in its square footprint of side
+``s = 2σ`` (60 mm in [W] ch. 3, 100–500 mm in [W] §4.4.3); the footprint
+turns with the robot. The default layout (:func:`default_reader_offsets`,
+SPEC §3) is two rows of four readers at 60 mm pitch centred on the robot.
+
+Detection likelihood, [W] eq. 3.7, in log form. With ``e = ʳm − ʳb`` the
+tag's position minus the detecting reader's position, both in the robot
+frame:
+
+    log w(e) = 0                          if |e_x| < σ and |e_y| < σ
+    log w(e) = log β − eᵀe / (2σ²)        otherwise
+
+[W] leaves β "a constant"; the default β = 0.1 makes the likelihood a near
+indicator of the footprint (at most ``0.1·e^{-1/2} ≈ 0.06`` outside) with
+Gaussian tails, so a particle set that has drifted wholly outside still has
+an ordering instead of a tie. The same function scores tag particles (a
+tag's particles against one robot pose, :func:`tag_log_likelihood`) and
+robot particles (many poses against one tag estimate,
+:func:`robot_log_likelihood`).
+
+FastSLAM cannot use a step likelihood; its per-particle EKF sees the
+detection as a measurement ``z = ʳb`` (the detecting reader's position in
+the robot frame) of the tag's robot-frame position ``h(x, m) = R(θ)ᵀ(m − p)``
+with the footprint replaced by the Gaussian of the same variance: a uniform
+square of side ``s`` has variance ``s²/12 = σ²/3`` per axis (SPEC §3).
+:func:`robot_frame`, :func:`world_frame` and :func:`footprint_cov` are that
+model's pieces (``jaxnav.slam.fastslam.HF_FOOTPRINT``), and
+:func:`landmark_observations` turns detections into its observation slots.
+
+Detections of one step are fixed slots (:class:`TagDetections`): tag ID,
+reader index and a validity mask, so the number of tags seen never changes
+an array shape.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import fastmath
+from jaxnav.core.validation import check_finite, check_positive, check_shape
+
+__all__ = [
+    "HFReaderParams",
+    "TagDetections",
+    "ReaderObservations",
+    "DEFAULT_BETA",
+    "default_reader_offsets",
+    "reader_params",
+    "validate_params",
+    "validate_detections",
+    "robot_frame",
+    "world_frame",
+    "log_detection_likelihood",
+    "tag_log_likelihood",
+    "robot_log_likelihood",
+    "sample_in_footprint",
+    "footprint_cov",
+    "landmark_observations",
+]
+
+DEFAULT_BETA = 0.1
+"""β of [W] eq. 3.7 (the thesis gives no value; see the module docstring)."""
+
+
+class HFReaderParams(NamedTuple):
+    """Reader array and detection model (a differentiable pytree).
+
+    Attributes:
+        offsets: ``[B, 2]`` reader centres in the robot frame (m).
+        half_width: σ of [W] eq. 3.7, half the footprint side (m); 0.03 for 60 mm readers.
+        log_beta: ``log β`` of [W] eq. 3.7 (β ≤ 1).
+    """
+
+    offsets: jax.Array
+    half_width: jax.Array
+    log_beta: jax.Array
+
+    @property
+    def num_readers(self) -> int:
+        return int(np.shape(self.offsets)[0])
+
+
+class TagDetections(NamedTuple):
+    """One step's detections in ``K`` fixed slots (a leading time axis for a sequence).
+
+    Attributes:
+        ids: ``[K]`` int32 tag ID (the filters' tag-table slot).
+        readers: ``[K]`` int32 index of the detecting reader into ``offsets``.
+        mask: ``[K]`` bool, True where the slot holds a detection.
+    """
+
+    ids: jax.Array
+    readers: jax.Array
+    mask: jax.Array
+
+
+class ReaderObservations(NamedTuple):
+    """Detections as landmark observations for FastSLAM: ``z`` = detecting reader's offset.
+
+    Attributes:
+        ids: ``[K]`` tag ID.
+        z: ``[K, 2]`` the detecting reader's position in the robot frame (m).
+        mask: ``[K]`` bool.
+    """
+
+    ids: jax.Array
+    z: jax.Array
+    mask: jax.Array
+
+
+def default_reader_offsets(rows: int = 2, cols: int = 4, pitch: float = 0.06) -> jax.Array:
+    """``[rows·cols, 2]`` reader centres on a grid of ``pitch`` (m) centred on the robot.
+
+    Rows run along the robot's y axis, columns along x; the default is SPEC
+    §3's two rows of four at 60 mm, reader ``b = r·cols + c``.
+    """
+    if int(rows) < 1 or int(cols) < 1:
+        raise ValueError(f"rows and cols must be positive integers, got {rows!r} and {cols!r}")
+    if not pitch > 0:
+        raise ValueError(f"pitch must be > 0 m, got {pitch!r}")
+    xs = (np.arange(cols) - (cols - 1) / 2.0) * pitch
+    ys = (np.arange(rows) - (rows - 1) / 2.0) * pitch
+    grid = np.stack(np.meshgrid(xs, ys, indexing="xy"), axis=-1).reshape(-1, 2)
+    return jnp.asarray(grid, jnp.float32)
+
+
+def reader_params(side: float = 0.06, offsets=None, beta: float = DEFAULT_BETA) -> HFReaderParams:
+    """:class:`HFReaderParams` for square footprints of ``side`` metres (σ = side/2).
+
+    Args:
+        side: footprint side (m): 0.06 in [W] ch. 3, 0.1–0.5 in [W] §4.4.3.
+        offsets: ``[B, 2]`` reader centres (m); default :func:`default_reader_offsets`.
+        beta: β of [W] eq. 3.7, in (0, 1].
+    """
+    if not side > 0:
+        raise ValueError(f"side (the reader footprint) must be > 0 m, got {side!r}; [W] uses 0.06 to 0.5")
+    if not 0 < beta <= 1:
+        raise ValueError(f"beta must be in (0, 1], got {beta!r}")
+    off = default_reader_offsets() if offsets is None else jnp.asarray(offsets, jnp.float32)
+    params = HFReaderParams(off, jnp.asarray(side / 2.0, jnp.float32), jnp.asarray(math.log(beta), jnp.float32))
+    validate_params(params)
+    return params
+
+
+def validate_params(params: HFReaderParams, argument: str = "params.sensor") -> None:
+    """Host-side check: ``offsets [B, 2]`` finite, ``half_width > 0``, ``log_beta ≤ 0``."""
+    if not isinstance(params, HFReaderParams):
+        raise ValueError(f"{argument} must be an HFReaderParams (see hf_rfid.reader_params), got {type(params).__name__}")
+    check_shape(f"{argument}.offsets", params.offsets, (None, 2))
+    if np.shape(params.offsets)[0] < 1:
+        raise ValueError(f"{argument}.offsets must hold at least one reader")
+    check_finite(f"{argument}.offsets", params.offsets)
+    check_shape(f"{argument}.half_width", params.half_width, ())
+    check_positive(f"{argument}.half_width", params.half_width)
+    check_shape(f"{argument}.log_beta", params.log_beta, ())
+    check_finite(f"{argument}.log_beta", params.log_beta)
+    lb = np.asarray(params.log_beta) if not isinstance(params.log_beta, jax.core.Tracer) else None
+    if lb is not None and lb > 0:
+        raise ValueError(f"{argument}.log_beta must be ≤ 0 (β ≤ 1), got {float(lb)}")
+
+
+def validate_detections(det: TagDetections, time_axis: bool, num_readers: int | None = None, name: str = "observations") -> None:
+    """Host-side check of a :class:`TagDetections` (shapes; reader indices when concrete)."""
+    for field in ("ids", "readers", "mask"):
+        if not hasattr(det, field):
+            raise ValueError(f"{name} must be a TagDetections with fields ids, readers and mask; missing {field!r}")
+    lead = (None, None) if time_axis else (None,)
+    for field in ("ids", "readers", "mask"):
+        check_shape(f"{name}.{field}", getattr(det, field), lead)
+    if not (np.shape(det.ids) == np.shape(det.readers) == np.shape(det.mask)):
+        raise ValueError(
+            f"{name}.ids, .readers and .mask must have the same shape, got "
+            f"{np.shape(det.ids)}, {np.shape(det.readers)}, {np.shape(det.mask)}"
+        )
+    if num_readers is not None and not isinstance(det.readers, jax.core.Tracer):
+        r = np.asarray(det.readers)[np.asarray(det.mask, bool)]
+        if r.size and (r.min() < 0 or r.max() >= num_readers):
+            raise ValueError(f"{name}.readers must index the {num_readers} readers, got values in [{r.min()}, {r.max()}]")
+
+
+# ---------------------------------------------------------------------------
+# frames
+
+
+def robot_frame(pose: jax.Array, point: jax.Array) -> jax.Array:
+    """``R(θ)ᵀ (point − p)``: a world point ``[..., 2]`` in the frame of ``pose [..., 3]`` (broadcasting)."""
+    s, c = fastmath.sincos(pose[..., 2])
+    dx = point[..., 0] - pose[..., 0]
+    dy = point[..., 1] - pose[..., 1]
+    return jnp.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+
+
+def world_frame(pose: jax.Array, point: jax.Array) -> jax.Array:
+    """``p + R(θ) point``: a robot-frame point ``[..., 2]`` in the world frame (inverse of :func:`robot_frame`)."""
+    s, c = fastmath.sincos(pose[..., 2])
+    x, y = point[..., 0], point[..., 1]
+    return jnp.stack([pose[..., 0] + c * x - s * y, pose[..., 1] + s * x + c * y], axis=-1)
+
+
+# ---------------------------------------------------------------------------
+# [W] eq. 3.7
+
+
+def log_detection_likelihood(e: jax.Array, half_width: jax.Array, log_beta: jax.Array) -> jax.Array:
+    """[W] eq. 3.7 in log form for residuals ``e [..., 2]`` (tag minus reader, robot frame, m)."""
+    inside = jnp.all(jnp.abs(e) < half_width, axis=-1)
+    outside = log_beta - jnp.sum(e * e, axis=-1) / (2.0 * half_width * half_width)
+    return jnp.where(inside, jnp.zeros_like(outside), outside)
+
+
+def tag_log_likelihood(tag_particles: jax.Array, pose: jax.Array, reader_offset: jax.Array, params: HFReaderParams) -> jax.Array:
+    """``[J]`` log-likelihood of tag particles ``[J, 2]`` (world, m) detected by the reader at
+    ``reader_offset [2]`` of a robot at ``pose [3]`` ([W] Alg. 1 line 10)."""
+    e = robot_frame(pose, tag_particles) - reader_offset
+    return log_detection_likelihood(e, params.half_width, params.log_beta)
+
+
+def robot_log_likelihood(poses: jax.Array, tag: jax.Array, reader_offset: jax.Array, params: HFReaderParams) -> jax.Array:
+    """``[I]`` log-likelihood of robot particles ``[I, 3]`` for a detection of the tag estimated
+    at ``tag [2]`` (world, m) by the reader at ``reader_offset [2]`` ([W] Alg. 1 line 18)."""
+    e = robot_frame(poses, tag) - reader_offset
+    return log_detection_likelihood(e, params.half_width, params.log_beta)
+
+
+def sample_in_footprint(key: jax.Array, pose: jax.Array, reader_offset: jax.Array, half_width: jax.Array, num: int) -> jax.Array:
+    """``[num, 2]`` world points uniform over the footprint of the reader at ``reader_offset``
+    of a robot at ``pose`` ([W] Alg. 1 line 7: a new tag's particles)."""
+    u = jax.random.uniform(key, (num, 2), pose.dtype, -1.0, 1.0) * half_width
+    return world_frame(pose, reader_offset + u)
+
+
+# ---------------------------------------------------------------------------
+# Gaussian footprint model for FastSLAM
+
+
+def footprint_cov(params: HFReaderParams) -> jax.Array:
+    """``[2, 2]`` covariance ``diag(s²/12)`` of a uniform square footprint of side ``s = 2σ``."""
+    var = params.half_width * params.half_width / 3.0
+    return jnp.eye(2, dtype=jnp.result_type(var)) * var
+
+
+def landmark_observations(detections: TagDetections, params: HFReaderParams) -> ReaderObservations:
+    """FastSLAM observation slots: ``z[k] = offsets[readers[k]]`` (works with a leading time axis)."""
+    readers = jnp.clip(detections.readers, 0, params.offsets.shape[0] - 1)
+    return ReaderObservations(detections.ids, params.offsets[readers], detections.mask)

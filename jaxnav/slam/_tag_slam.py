@@ -1,0 +1,315 @@
+"""The step shared by PF-SLAM and PS-SLAM: one robot particle filter, an independent estimator per tag.
+
+[W] Algs. 1 and 2 differ only in how a detected tag's particle set is
+updated (a particle filter, or a fixed-lag particle smoother); everything
+else — motion, gathering the detected tags, initialising new ones, weighting
+and resampling the robot — is this module. A tag estimator is a
+row type (a NamedTuple of one tag's arrays, with fields ``estimates`` and
+``counts``) and an ``update_tag`` function of one row; the tag table is the
+same row type with a leading ``max_tags`` axis, indexed by tag ID.
+
+One step, for ``K`` detection slots (ids, readers, mask):
+
+1. Robot particles move by the motion model ([W] Alg. 1 lines 2–4); the
+   robot estimate ``x̂`` is their weighted mean (circular θ).
+2. The ``K`` detected rows are *gathered* from the table (``O(K·J)``).
+3. Each slot is updated by the tag model, ``vmap``-ed over slots. Slots that
+   detected the same tag in this step (two readers, one tag) are grouped:
+   every slot of a group computes the same update from all of the group's
+   detections (same key: ``fold_in(key, tag ID)``), and only the group's
+   first slot writes it back, so a tag is updated exactly once per step with
+   every reader's evidence. A new tag is initialised uniformly over the
+   footprint of its first detecting reader (world frame, from ``x̂``); the
+   group's other readers then weight it.
+4. The rows are *scattered* back (out-of-table writes dropped), in place in
+   a ``lax.scan`` carry or in a donated ``step``: no operation in a step
+   touches the whole table, so a step costs ``O(I + K·J)`` whatever the map
+   holds ([W] §3.3.1).
+5. Robot particles are weighted by [W] eq. 3.7 against the *updated*
+   estimates of the re-detected tags (Alg. 1 lines 17–19), then resampled
+   (lines 21–24, conditional on the ESS; every step by default).
+
+Choices where [W] is silent (stated here, tested):
+
+* A tag seen for the first time does not weight the robot: its estimate was
+  made from ``x̂`` itself, so scoring the robot against it would only pull
+  the particles toward their own mean.
+* Kidnapping ([W] §3.4.3 says the robot "recognizes the kidnapping" without
+  giving a mechanism). With ``config.recovery`` the step first scores the
+  robot particles against the re-detected tags' *previous* estimates; if the
+  best particle averages below ``recovery_log_likelihood`` per detection
+  (with the default −8 and β = 0.1 that is about 3.4 σ from every detected
+  tag), the robot is lost: its particles are redrawn around the detected
+  tags (for each particle a re-detected slot is picked at random, a point
+  uniform over that reader's footprint, and the position that puts the
+  reader over the tag estimate; heading = the particle's own plus
+  ``N(0, recovery_heading_sd²)``), and no tag is updated in that step so a
+  lost robot does not corrupt the map. ``info.lost`` flags such steps.
+* In place: every field written back must be computed *from* its gathered
+  row. A row field that does not depend on its gather (say, a constant) lets
+  XLA schedule the scatter before the read and copy the whole table to keep
+  the read valid, an ``O(max_tags)`` copy per step. Tag models therefore
+  return the gathered log-weights when they are known to be uniform (tag
+  resampling at every detection) instead of a fresh constant.
+* ``counts`` counts the steps in which a tag was detected (one per step,
+  however many readers saw it): the "detection times" of [W] Fig. 3.5, and
+  the ring position of PS-SLAM.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import resampling, weights
+from jaxnav.core.validation import (
+    check_choice,
+    check_finite,
+    check_fraction,
+    check_nonnegative,
+    check_positive_int,
+    check_shape,
+)
+from jaxnav.models import hf_rfid
+from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import validate_noise as validate_motion_noise
+
+_POSE_ANGLE_DIMS = (2,)
+
+
+class SLAMInfo(NamedTuple):
+    """Per-step diagnostics of PF-SLAM and PS-SLAM.
+
+    Attributes:
+        estimate: ``[3]`` robot pose estimate (weighted mean, circular θ) after the update (m, m, rad).
+        ess: robot effective sample size before resampling.
+        resampled: bool, the robot particles were resampled.
+        log_likelihood: log marginal-likelihood increment of the robot filter.
+        degenerate: bool, every robot weight was zero and the set was reset to uniform.
+        lost: bool, kidnapping recovery redrew the robot particles (see ``config.recovery``).
+        num_ignored: valid slots whose tag ID is outside ``[0, max_tags)`` (dropped).
+        num_new: tags initialised this step.
+        num_updated: tags re-detected (updated) this step.
+        slot_ids: ``[K]`` tag ID per slot, −1 for empty or dropped slots.
+        slot_estimates: ``[K, 2]`` the slot's tag estimate after the step (m).
+        slot_counts: ``[K]`` the slot's tag detection count after the step.
+    """
+
+    estimate: jax.Array
+    ess: jax.Array
+    resampled: jax.Array
+    log_likelihood: jax.Array
+    degenerate: jax.Array
+    lost: jax.Array
+    num_ignored: jax.Array
+    num_new: jax.Array
+    num_updated: jax.Array
+    slot_ids: jax.Array
+    slot_estimates: jax.Array
+    slot_counts: jax.Array
+
+
+# ---------------------------------------------------------------------------
+# validation shared by both filters
+
+
+def validate_common_config(config: Any) -> None:
+    """Checks of the fields PF-SLAM and PS-SLAM configs share (raises ValueError)."""
+    check_positive_int("num_particles", config.num_particles)
+    check_positive_int("num_tag_particles", config.num_tag_particles)
+    check_positive_int("max_tags", config.max_tags)
+    check_choice("motion_model", config.motion_model, MODELS)
+    check_choice("resampling", config.resampling, resampling.SCHEMES)
+    check_fraction("ess_threshold", config.ess_threshold)
+    check_fraction("tag_ess_threshold", config.tag_ess_threshold)
+    if not isinstance(config.recovery, bool):
+        raise ValueError(f"recovery must be True or False, got {config.recovery!r}")
+    if not np.isfinite(config.recovery_log_likelihood) or config.recovery_log_likelihood >= 0:
+        raise ValueError(f"recovery_log_likelihood must be a negative number, got {config.recovery_log_likelihood!r}")
+    if not (np.isfinite(config.recovery_heading_sd) and config.recovery_heading_sd >= 0):
+        raise ValueError(f"recovery_heading_sd must be ≥ 0 rad, got {config.recovery_heading_sd!r}")
+
+
+def check_capacity(config: Any, num_tags: int) -> None:
+    """Refuse a tag table smaller than the carpet: IDs ``≥ max_tags`` would be dropped."""
+    if int(num_tags) > config.max_tags:
+        raise ValueError(
+            f"max_tags={config.max_tags} is too small for a carpet of {int(num_tags)} tags: "
+            f"set max_tags ≥ {int(num_tags)} (tag IDs index the table directly)"
+        )
+
+
+def validate_params(config: Any, params: Any, params_type: type) -> None:
+    if not isinstance(params, params_type):
+        raise ValueError(f"params must be a {params_type.__name__}, got {type(params).__name__}")
+    validate_motion_noise(config.motion_model, params.motion)
+    hf_rfid.validate_params(params.sensor)
+
+
+def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, ...]]) -> None:
+    check_shape("state.poses", state.poses, (config.num_particles, 3))
+    check_shape("state.log_weights", state.log_weights, (config.num_particles,))
+    for field, shape in table_shapes.items():
+        check_shape(f"state.tags.{field}", getattr(state.tags, field), shape)
+
+
+def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, time_axis: bool) -> None:
+    dim = get_motion_model(config.motion_model).control_dim
+    name = "controls" if time_axis else "control"
+    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
+    check_finite(name, controls)
+    hf_rfid.validate_detections(detections, time_axis, params.sensor.num_readers)
+    if time_axis and np.shape(detections.ids)[0] != np.shape(controls)[0]:
+        raise ValueError(
+            f"controls and observations must have the same number of steps, got "
+            f"{np.shape(controls)[0]} and {np.shape(detections.ids)[0]}"
+        )
+
+
+def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd: Any) -> tuple[jax.Array, jax.Array]:
+    """Robot particles at ``N(initial_pose, diag(initial_sd²))`` ([W] Alg. 1 line 1: a known start) and uniform log-weights."""
+    pose = jnp.asarray(initial_pose, jnp.result_type(float))
+    check_shape("initial_pose", pose, (3,))
+    check_finite("initial_pose", pose)
+    sd = jnp.zeros(3, pose.dtype) if initial_sd is None else jnp.asarray(initial_sd, pose.dtype)
+    check_shape("initial_sd", sd, (3,))
+    check_nonnegative("initial_sd", sd)
+    n = config.num_particles
+    poses = pose + jax.random.normal(key, (n, 3), pose.dtype) * sd
+    poses = poses.at[:, 2].set(weights.wrap_angle(poses[:, 2]))
+    return poses, jnp.full((n,), -np.log(n), pose.dtype)
+
+
+# ---------------------------------------------------------------------------
+# the step
+
+
+def _slots(det: hf_rfid.TagDetections, max_tags: int):
+    """Valid slots, safe IDs, same-tag groups ``[K, K]``, each slot's group leader, and dropped count."""
+    in_table = (det.ids >= 0) & (det.ids < max_tags)
+    valid = det.mask & in_table
+    ids = jnp.clip(det.ids, 0, max_tags - 1).astype(jnp.int32)
+    same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
+    first = jnp.argmax(same, axis=1).astype(jnp.int32)
+    leader = valid & (first == jnp.arange(ids.shape[0]))
+    return valid, ids, same, first, leader, jnp.sum(det.mask & ~in_table).astype(jnp.int32)
+
+
+def _robot_log_likelihood(poses, tag_estimates, offsets, mask, sensor) -> jax.Array:
+    """``[I]`` Σ over slots of [W] eq. 3.7 for robot particles against tag estimates ``[K, 2]``."""
+    ll = jax.vmap(lambda tag, off: hf_rfid.robot_log_likelihood(poses, tag, off, sensor))(tag_estimates, offsets)
+    return jnp.sum(jnp.where(mask[:, None], ll, 0.0), axis=0)
+
+
+def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.Array:
+    """Robot particles redrawn around the re-detected tags (kidnapping recovery; module docstring)."""
+    k_pick, k_foot, k_head = jax.random.split(key, 3)
+    n = poses.shape[0]
+    logits = jnp.where(known, 0.0, -jnp.inf)
+    pick = jax.random.categorical(k_pick, logits, shape=(n,))
+    u = jax.random.uniform(k_foot, (n, 2), poses.dtype, -1.0, 1.0) * sensor.half_width
+    theta = weights.wrap_angle(poses[:, 2] + config.recovery_heading_sd * jax.random.normal(k_head, (n,), poses.dtype))
+    body = offsets[pick] + u
+    # tag = p + R(θ)·body  ⇒  p = tag − R(θ)·body
+    offset_world = hf_rfid.world_frame(jnp.concatenate([jnp.zeros((n, 2), poses.dtype), theta[:, None]], axis=1), body)
+    xy = tag_estimates[pick] - offset_world
+    return jnp.concatenate([xy, theta[:, None]], axis=1)
+
+
+def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, update_tag: Callable[..., Any]):
+    """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
+
+    ``update_tag(key, row, is_new, pose_est, init_offset, offsets [K, 2], mask [K], config, params) -> row``
+    updates one tag; ``mask`` selects the slots whose detections weight it.
+    """
+    k_move, k_tags, k_recover, k_resample = jax.random.split(key, 4)
+    model = get_motion_model(config.motion_model)
+    sensor = params.sensor
+    max_tags, num_slots = config.max_tags, det.ids.shape[0]
+
+    poses = model.sample(k_move, state.poses, control, params.motion)
+    pose_est = weights.mean_from_probabilities(poses, jnp.exp(state.log_weights), _POSE_ANGLE_DIMS)
+
+    valid, ids, same, first, leader, num_ignored = _slots(det, max_tags)
+    offsets = sensor.offsets[jnp.clip(det.readers, 0, sensor.offsets.shape[0] - 1)]
+    rows = jax.tree_util.tree_map(lambda a: a[ids], state.tags)  # gather: O(K·row)
+    known = valid & (rows.counts > 0)
+    is_new = valid & ~known
+
+    # Kidnapping check against the previous estimates of the re-detected tags.
+    num_known = jnp.sum(known)
+    ll_prev = _robot_log_likelihood(poses, rows.estimates, offsets, known, sensor)
+    lost = (
+        jnp.asarray(config.recovery)
+        & (num_known > 0)
+        & (jnp.max(ll_prev) < config.recovery_log_likelihood * num_known.astype(poses.dtype))
+    )
+
+    slots = jnp.arange(num_slots)
+
+    def update_slot(k, row):
+        # A new tag was initialised by its group's first reader; the others weight it.
+        mask = same[k] & jnp.where(is_new[k], slots != first[k], True)
+        return update_tag(
+            jax.random.fold_in(k_tags, ids[k]), row, is_new[k], pose_est, offsets[first[k]], offsets, mask, config, params
+        )
+
+    new_rows = jax.vmap(update_slot)(slots, rows)
+    write = leader & ~lost
+    write_ids = jnp.where(write, ids, max_tags)  # out of range: dropped by the scatter
+    tags = jax.tree_util.tree_map(lambda a, v: a.at[write_ids].set(v, mode="drop"), state.tags, new_rows)
+
+    estimates = jnp.where(lost, rows.estimates, new_rows.estimates)
+    recovered = _recover(k_recover, poses, rows.estimates, offsets, known, config, sensor)
+    poses = jnp.where(lost, recovered, poses)
+    uniform = jnp.full_like(state.log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
+    prior_lw = jnp.where(lost, uniform, state.log_weights)
+    loglik = _robot_log_likelihood(poses, estimates, offsets, known, sensor)
+    norm = weights.normalize(prior_lw + loglik)
+    probs = jnp.exp(norm.log_weights)
+    estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
+    ess = weights.ess_from_probabilities(probs)
+    res = resampling.conditional_resample(
+        k_resample, poses, norm.log_weights, threshold=config.ess_threshold, scheme=config.resampling, normalized=True
+    )
+
+    counts_after = jnp.where(lost, rows.counts, new_rows.counts)
+    info = SLAMInfo(
+        estimate=estimate,
+        ess=ess,
+        resampled=res.resampled,
+        log_likelihood=norm.log_norm,
+        degenerate=norm.degenerate,
+        lost=lost,
+        num_ignored=num_ignored,
+        num_new=jnp.sum(leader & is_new & ~lost).astype(jnp.int32),
+        num_updated=jnp.sum(leader & known & ~lost).astype(jnp.int32),
+        slot_ids=jnp.where(valid, ids, -1),
+        slot_estimates=jnp.where(valid[:, None], estimates, 0.0),
+        slot_counts=jnp.where(valid, counts_after, 0),
+    )
+    return state._replace(poses=res.particles, log_weights=res.log_weights, tags=tags), info
+
+
+def tag_detection_log_likelihood(particles, pose_est, offsets, mask, sensor) -> jax.Array:
+    """``[J]`` Σ over the masked slots of [W] eq. 3.7 for one tag's particles ``[J, 2]``."""
+    ll = jax.vmap(lambda off: hf_rfid.tag_log_likelihood(particles, pose_est, off, sensor))(offsets)
+    return jnp.sum(jnp.where(mask[:, None], ll, 0.0), axis=0)
+
+
+def resampled_log_weights(row, res: resampling.ResampleResult, config) -> jax.Array:
+    """A tag's log-weights after its update. With resampling at every detection
+    (``tag_ess_threshold = 1``) they are uniform before and after, and the gathered
+    row is returned so that the write-back stays in place (module docstring)."""
+    return row.log_weights if config.tag_ess_threshold >= 1.0 else res.log_weights
+
+
+def map_estimate(state) -> tuple[jax.Array, jax.Array]:
+    """``(estimates [max_tags, 2], seen [max_tags])``: every tag's current estimate (m) and whether it was detected.
+
+    Reads the whole table, so it is a read-out for after (or between) steps, not part of one.
+    """
+    return state.tags.estimates, state.tags.counts > 0

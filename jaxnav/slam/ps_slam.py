@@ -1,0 +1,228 @@
+"""PS-SLAM ([W] Alg. 2): a particle filter for the robot and a fixed-lag particle smoother per RFID tag.
+
+Overview
+--------
+As :mod:`jaxnav.slam.pf_slam`, except that each detected tag is estimated by
+Kitagawa's fixed-lag particle smoother ([W] §4.1–4.2, eq. 4.4). A tag
+particle carries the ring of its last ``L`` states (eq. 4.5; ``L`` = 20–30
+in [W] §4.1). On a re-detection of tag ``n`` (Alg. 2 lines 9–23):
+
+1. every particle moves by a Gaussian jitter, ``m_t = m_{t−1} + N(0, s²)``
+   with ``s = params.tag_jitter_sd`` (line 11);
+2. it is weighted by [W] eq. 3.7 with the robot estimate (line 12) and the
+   new state is pushed onto its ring (line 13);
+3. the particles are resampled (lines 16–19). Resampling selects whole
+   lagged states: a chosen particle's *history moves with it* (Kitagawa
+   1996 resamples the augmented state ``x_{t−L+1:t}``), so the ring rows are
+   gathered with the same ancestor indices;
+4. the smoothed particle is the mean of its ring, ``m̄^{[j]} = Σ_{i=t+1−L}^{t} m_i^{[j]} / L``
+   (over the states held, while fewer than ``L``; lines 20–22), and the
+   tag's estimate is the weighted mean of the smoothed particles (line 24).
+   The robot is then weighted against that estimate (lines 25–27).
+
+A new tag's particles are spread over the detecting reader's footprint and
+stored as the first entry of their rings (lines 6–8). The ring's position
+is the tag's detection count mod ``L``, so no head or count is stored
+twice. The ring lives in the tag table as ``history [max_tags, L, J, 2]``:
+a step gathers and scatters the ``K`` detected tags' rings only, ``O(K·L·J)``,
+independent of the map size; the memory is ``O(max_tags·L·J)``.
+
+Interface: as PF-SLAM, with ``PSSLAMConfig.lag`` and ``PSSLAMParams.tag_jitter_sd``::
+
+    config = ps_slam.PSSLAMConfig(max_tags=carpet.layout.num_tags, lag=20)
+    params = ps_slam.PSSLAMParams(OmniNoise(sd), hf_rfid.reader_params(0.3), tag_jitter_sd=0.015)
+    final, trace = ps_slam.run(key, config, params, odometry, detections, ps_slam.init(key0, config, params, start))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import resampling, ring, weights
+from jaxnav.core.batch import scan_filter
+from jaxnav.core.validation import check_nonnegative, check_positive_int, check_shape
+from jaxnav.models import hf_rfid
+from jaxnav.slam import _tag_slam
+from jaxnav.slam._tag_slam import SLAMInfo, check_capacity, tag_detection_log_likelihood
+
+__all__ = [
+    "PSSLAMConfig",
+    "PSSLAMParams",
+    "SmootherTable",
+    "PSSLAMState",
+    "SLAMInfo",
+    "init",
+    "step",
+    "run",
+    "map_estimate",
+    "check_capacity",
+]
+
+
+@dataclass(frozen=True)
+class PSSLAMConfig:
+    """Static configuration of PS-SLAM: the fields of :class:`~jaxnav.slam.pf_slam.PFSLAMConfig` plus ``lag``.
+
+    Attributes:
+        lag: ``L``, states kept per tag particle (20–30 in [W] §4.1); ``L = 1`` smooths nothing.
+    """
+
+    num_particles: int = 500
+    num_tag_particles: int = 100
+    max_tags: int = 1024
+    lag: int = 20
+    motion_model: str = "omni"
+    resampling: str = "systematic"
+    ess_threshold: float = 1.0
+    tag_ess_threshold: float = 1.0
+    recovery: bool = True
+    recovery_log_likelihood: float = -8.0
+    recovery_heading_sd: float = 0.05
+
+    def __post_init__(self) -> None:
+        _tag_slam.validate_common_config(self)
+        check_positive_int("lag", self.lag)
+
+
+class PSSLAMParams(NamedTuple):
+    """Differentiable parameters.
+
+    Attributes:
+        motion: motion-model noise (``OmniNoise`` for [W] eq. 3.6).
+        sensor: :class:`jaxnav.models.hf_rfid.HFReaderParams`.
+        tag_jitter_sd: standard deviation of the Gaussian move of a tag particle at each re-detection
+            ([W] Alg. 2 line 11; m). [W] gives no value; :func:`default_jitter` is σ/10.
+    """
+
+    motion: Any
+    sensor: hf_rfid.HFReaderParams
+    tag_jitter_sd: jax.Array
+
+
+def default_jitter(sensor: hf_rfid.HFReaderParams) -> jax.Array:
+    """A tag jitter of a tenth of the footprint half-width σ (3 mm for 60 mm readers, 15 mm for 300 mm)."""
+    return jnp.asarray(sensor.half_width) / 10.0
+
+
+class SmootherTable(NamedTuple):
+    """Every tag's fixed-lag smoother, indexed by tag ID.
+
+    Attributes:
+        particles: ``[max_tags, J, 2]`` current tag particles (m).
+        log_weights: ``[max_tags, J]`` normalised.
+        estimates: ``[max_tags, 2]`` smoothed estimate: weighted mean of the ring means (m).
+        counts: ``[max_tags]`` int32 detection count; the ring holds ``min(count, L)`` states and
+            its next slot is ``count mod L``.
+        history: ``[max_tags, L, J, 2]`` the rings of past states (m).
+    """
+
+    particles: jax.Array
+    log_weights: jax.Array
+    estimates: jax.Array
+    counts: jax.Array
+    history: jax.Array
+
+
+class PSSLAMState(NamedTuple):
+    """Robot particles (``poses [I, 3]``, ``log_weights [I]``) and the smoother table ``tags``."""
+
+    poses: jax.Array
+    log_weights: jax.Array
+    tags: SmootherTable
+
+
+def _empty_table(config: PSSLAMConfig, dtype) -> SmootherTable:
+    t, j, lag = config.max_tags, config.num_tag_particles, config.lag
+    return SmootherTable(
+        jnp.zeros((t, j, 2), dtype),
+        jnp.full((t, j), -np.log(j), dtype),
+        jnp.zeros((t, 2), dtype),
+        jnp.zeros((t,), jnp.int32),
+        jnp.zeros((t, lag, j, 2), dtype),
+    )
+
+
+def _update_tag(key, row: SmootherTable, is_new, pose_est, init_offset, offsets, mask, config, params) -> SmootherTable:
+    """[W] Alg. 2 lines 6–24 for one tag: initialise or jitter, weight, push, resample (with histories), smooth."""
+    k_init, k_jitter, k_res = jax.random.split(key, 3)
+    j, lag = config.num_tag_particles, config.lag
+    fresh = hf_rfid.sample_in_footprint(k_init, pose_est, init_offset, params.sensor.half_width, j)
+    moved = row.particles + params.tag_jitter_sd * jax.random.normal(k_jitter, row.particles.shape, row.particles.dtype)
+    particles = jnp.where(is_new, fresh, moved)
+    log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
+    ll = tag_detection_log_likelihood(particles, pose_est, offsets, mask, params.sensor)
+    norm = weights.normalize(log_w + ll)
+    count = jnp.where(is_new, 0, row.counts)
+    buf = ring.RingBuffer(row.history, count % lag, jnp.minimum(count, lag))
+    buf = ring.ring_push(buf, particles)
+    res = resampling.conditional_resample(
+        k_res, particles, norm.log_weights, threshold=config.tag_ess_threshold, scheme=config.resampling, normalized=True
+    )
+    buf = buf._replace(data=jnp.take(buf.data, res.ancestors, axis=1))  # histories move with their particles
+    smoothed = ring.ring_mean(buf)  # [J, 2]
+    estimate = weights.mean_from_probabilities(smoothed, jnp.exp(res.log_weights))
+    return SmootherTable(res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data)
+
+
+def _table_shapes(config: PSSLAMConfig) -> dict[str, tuple[int, ...]]:
+    t, j = config.max_tags, config.num_tag_particles
+    return {
+        "particles": (t, j, 2),
+        "log_weights": (t, j),
+        "estimates": (t, 2),
+        "counts": (t,),
+        "history": (t, config.lag, j, 2),
+    }
+
+
+def _validate_params(config: PSSLAMConfig, params: PSSLAMParams) -> None:
+    _tag_slam.validate_params(config, params, PSSLAMParams)
+    check_shape("params.tag_jitter_sd", params.tag_jitter_sd, ())
+    check_nonnegative("params.tag_jitter_sd", params.tag_jitter_sd)
+
+
+def init(key: jax.Array, config: PSSLAMConfig, params: PSSLAMParams, initial_pose, initial_sd=None) -> PSSLAMState:
+    """Robot particles at ``N(initial_pose, diag(initial_sd²))`` (default: the known start) and an empty map."""
+    _validate_params(config, params)
+    poses, log_w = _tag_slam.initial_particles(key, config, initial_pose, initial_sd)
+    return PSSLAMState(poses, log_w, _empty_table(config, poses.dtype))
+
+
+def _step(key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections):
+    return _tag_slam.slam_step(key, state, config, params, control, detections, _update_tag)
+
+
+_step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))
+
+
+def _validate(config, params, state, controls, detections, time_axis):
+    _validate_params(config, params)
+    _tag_slam.validate_state(config, state, _table_shapes(config))
+    _tag_slam.validate_inputs(config, params, controls, detections, time_axis)
+
+
+def step(key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections: hf_rfid.TagDetections):
+    """One PS-SLAM step, validated on the host, then jitted; ``state`` is donated (updated in place)."""
+    _validate(config, params, state, control, detections, time_axis=False)
+    return _step_jit(key, state, config, params, control, detections)
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _run_jit(key, config, params, controls, detections, state):
+    return scan_filter(_step, config, params, controls, detections, state, key)
+
+
+def run(key, config: PSSLAMConfig, params: PSSLAMParams, controls, detections: hf_rfid.TagDetections, initial_state: PSSLAMState):
+    """Filter a sequence in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``); returns ``(final_state, SLAMInfo trace)``."""
+    _validate(config, params, initial_state, controls, detections, time_axis=True)
+    return _run_jit(key, config, params, controls, detections, initial_state)
+
+
+map_estimate = jax.jit(_tag_slam.map_estimate)
+map_estimate.__doc__ = _tag_slam.map_estimate.__doc__

@@ -1,0 +1,278 @@
+"""PF-SLAM and PS-SLAM steps ([W] Algs. 1 and 2) on tiny hand-built cases.
+
+Every expected number below is computed here in NumPy from [W] eq. 3.7 and
+the algorithm's lines, independently of jaxnav's implementation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxnav.models import hf_rfid
+from jaxnav.models.motion import OmniNoise
+from jaxnav.slam import pf_slam, ps_slam
+
+BETA = 0.1
+SENSOR = hf_rfid.reader_params(0.06, beta=BETA)
+OFFSETS = np.asarray(SENSOR.offsets, np.float64)
+SIGMA = 0.03
+STILL = jnp.asarray([0.0, 0.0, 0.0, 0.1], jnp.float32)  # (vx, vy, ω, dt): no motion
+NO_NOISE = OmniNoise(jnp.zeros(3, jnp.float32))
+
+
+def _eq37(e: np.ndarray) -> np.ndarray:
+    """[W] eq. 3.7 (log form), written out independently."""
+    e = np.atleast_2d(e)
+    inside = (np.abs(e[:, 0]) < SIGMA) & (np.abs(e[:, 1]) < SIGMA)
+    return np.where(inside, 0.0, math.log(BETA) - (e * e).sum(1) / (2 * SIGMA**2))
+
+
+def _to_robot(pose, pts):
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    d = np.atleast_2d(pts) - pose[:2]
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1)
+
+
+def _det(pairs, k=4):
+    ids = np.zeros(k, np.int32)
+    readers = np.zeros(k, np.int32)
+    mask = np.zeros(k, bool)
+    for i, (n, b) in enumerate(pairs):
+        ids[i], readers[i], mask[i] = n, b, True
+    return hf_rfid.TagDetections(jnp.asarray(ids), jnp.asarray(readers), jnp.asarray(mask))
+
+
+def _pf(i=4, j=4, max_tags=8, **kw):
+    return pf_slam.PFSLAMConfig(num_particles=i, num_tag_particles=j, max_tags=max_tags, **kw)
+
+
+def _state_with_tag(config, poses, tag_id, tag_particles):
+    state = pf_slam.init(jax.random.PRNGKey(0), config, pf_slam.PFSLAMParams(NO_NOISE, SENSOR), poses[0])
+    tags = state.tags
+    tp = jnp.asarray(tag_particles, jnp.float32)
+    tags = tags._replace(
+        particles=tags.particles.at[tag_id].set(tp),
+        estimates=tags.estimates.at[tag_id].set(tp.mean(0)),
+        counts=tags.counts.at[tag_id].set(1),
+    )
+    return state._replace(poses=jnp.asarray(poses, jnp.float32), tags=tags)
+
+
+def test_pf_slam_redetection_matches_hand_computed_algorithm_1():
+    """J = I = 4, one re-detection by reader 5: tag weights, tag resampling, tag estimate,
+    robot weights, ESS, estimate and log-likelihood equal the hand computation of [W] Alg. 1."""
+    config = _pf()
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    # Robot particles: two inside the plausible region, two off by 5 cm and 6 cm in x (outside the footprint, not on its edge).
+    poses = np.array([[1.0, 1.0, 0.0], [1.004, 0.998, 0.0], [1.05, 1.0, 0.0], [0.94, 1.0, 0.0]])
+    reader = 5  # offset (-0.03, 0.03)
+    # Tag particles: two inside reader 5's footprint seen from the estimate, two far outside.
+    tag = np.array([[0.975, 1.03], [0.985, 1.02], [1.2, 1.3], [0.7, 0.6]])
+    state = _state_with_tag(config, poses, 3, tag)
+
+    new_state, info = pf_slam.step(jax.random.PRNGKey(7), state, config, params, STILL, _det([(3, reader)]))
+
+    pose_est = poses.mean(0)  # uniform weights, θ = 0
+    ll_tag = _eq37(_to_robot(pose_est, tag) - OFFSETS[reader])
+    assert ll_tag[0] == 0 and ll_tag[1] == 0 and ll_tag[2] < -40 and ll_tag[3] < -40
+    # Weights (0.5, 0.5, ~0, ~0): systematic resampling keeps exactly two copies of each survivor.
+    particles = np.asarray(new_state.tags.particles[3])
+    for survivor in tag[:2]:
+        assert np.sum(np.all(np.isclose(particles, survivor, atol=1e-6), axis=1)) == 2
+    tag_est = tag[:2].mean(0)
+    np.testing.assert_allclose(new_state.tags.estimates[3], tag_est, atol=1e-6)
+    np.testing.assert_allclose(np.exp(new_state.tags.log_weights[3]), np.full(4, 0.25), rtol=1e-5)
+    assert int(new_state.tags.counts[3]) == 2
+
+    ll_robot = _eq37(np.stack([_to_robot(p, tag_est)[0] for p in poses]) - OFFSETS[reader])
+    w = np.exp(ll_robot - ll_robot.max())
+    w /= w.sum()
+    np.testing.assert_allclose(info.ess, 1.0 / np.sum(w**2), rtol=1e-4)
+    np.testing.assert_allclose(info.estimate[:2], (w[:, None] * poses[:, :2]).sum(0), atol=1e-5)
+    np.testing.assert_allclose(info.log_likelihood, np.log(np.mean(np.exp(ll_robot))), rtol=1e-4, atol=1e-5)
+    assert int(info.num_updated) == 1 and int(info.num_new) == 0 and not bool(info.lost)
+    # The resampled robot set consists of the original particles, in systematic proportions.
+    counts = [int(np.sum(np.all(np.isclose(new_state.poses, p, atol=1e-6), axis=1))) for p in poses]
+    assert sum(counts) == 4
+    for c, wi in zip(counts, w):
+        assert math.floor(4 * wi) <= c <= math.ceil(4 * wi)
+
+
+def test_new_tag_is_spread_over_the_detecting_footprint_and_does_not_weight_the_robot():
+    config = _pf(j=64)
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    pose = np.array([2.0, -1.0, 0.7])
+    state = pf_slam.init(jax.random.PRNGKey(1), config, params, pose)
+    new_state, info = pf_slam.step(jax.random.PRNGKey(2), state, config, params, STILL, _det([(6, 2)]))
+    e = _to_robot(pose, np.asarray(new_state.tags.particles[6])) - OFFSETS[2]
+    assert np.all(np.abs(e) <= SIGMA + 1e-6)
+    assert np.std(e[:, 0]) > 0.4 * SIGMA  # spread over the footprint (uniform sd = σ/√3 ≈ 0.58σ)
+    assert int(new_state.tags.counts[6]) == 1 and int(info.num_new) == 1
+    np.testing.assert_allclose(float(info.ess), config.num_particles, rtol=1e-5)
+    assert int(np.sum(np.asarray(new_state.tags.counts) > 0)) == 1  # nothing else written
+
+
+def test_two_readers_detecting_one_tag_update_it_once_with_both_detections():
+    """300 mm footprints overlap: readers 0 and 3 (18 cm apart) both see a new tag. The tag is
+    written once, counted once, and its particles end in the intersection of the two footprints."""
+    sensor = hf_rfid.reader_params(0.3, beta=1e-3)
+    config = _pf(j=200)
+    params = pf_slam.PFSLAMParams(NO_NOISE, sensor)
+    pose = np.zeros(3)
+    state = pf_slam.init(jax.random.PRNGKey(3), config, params, pose)
+    new_state, info = pf_slam.step(jax.random.PRNGKey(4), state, config, params, STILL, _det([(1, 0), (1, 3)]))
+    off = np.asarray(sensor.offsets)
+    p = np.asarray(new_state.tags.particles[1])
+    in_0 = np.all(np.abs(p - off[0]) < 0.15, axis=1)
+    in_3 = np.all(np.abs(p - off[3]) < 0.15, axis=1)
+    assert in_0.all() and in_3.mean() > 0.9  # initialised in reader 0's footprint, weighted by reader 3's
+    assert int(new_state.tags.counts[1]) == 1 and int(info.num_new) == 1
+    np.testing.assert_array_equal(np.asarray(info.slot_ids), [1, 1, -1, -1])
+    # Negative control: detected by reader 0 alone, only the overlap (40 % of the footprint) is in reader 3's.
+    single, _ = pf_slam.step(jax.random.PRNGKey(4), pf_slam.init(jax.random.PRNGKey(3), config, params, pose), config, params, STILL, _det([(1, 0)]))
+    q = np.asarray(single.tags.particles[1])
+    assert 0.25 < np.all(np.abs(q - off[3]) < 0.15, axis=1).mean() < 0.6
+
+
+def test_ids_beyond_the_table_are_dropped_and_counted():
+    config = _pf(max_tags=4)
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
+    before = jax.tree_util.tree_map(np.asarray, state.tags)
+    new_state, info = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(4, 0), (99, 1), (-1, 2)]))
+    assert int(info.num_ignored) == 3 and int(info.num_new) == 0
+    for a, b in zip(jax.tree_util.tree_leaves(new_state.tags), jax.tree_util.tree_leaves(before)):
+        np.testing.assert_array_equal(np.asarray(a), b)
+
+
+def _ps(j=4, lag=3, **kw):
+    return ps_slam.PSSLAMConfig(num_particles=4, num_tag_particles=j, max_tags=8, lag=lag, **kw)
+
+
+def test_ps_slam_ring_holds_lineages_and_smoothed_estimate_is_the_ring_mean():
+    """J = 4, L = 3: after four detections the ring has wrapped; every particle's ring rows form
+    one lineage (consecutive states differ by the jitter, not by a jump to another particle),
+    the current particle is the newest ring entry, and the estimate is the mean over the last L."""
+    config = _ps()
+    jitter = 1e-3
+    params = ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(jitter, jnp.float32))
+    pose = np.array([0.5, 0.5, 0.0])
+    state = ps_slam.init(jax.random.PRNGKey(0), config, params, pose)
+    for t in range(4):
+        state, info = ps_slam.step(jax.random.PRNGKey(10 + t), state, config, params, STILL, _det([(2, 1)]))
+    tags = jax.tree_util.tree_map(np.asarray, state.tags)
+    assert tags.counts[2] == 4
+    hist = tags.history[2]  # [L, J, 2]; slot 4 mod 3 = 1 is next, so the order is slots 1, 2, 0
+    ordered = hist[[1, 2, 0]]
+    np.testing.assert_allclose(ordered[-1], tags.particles[2], atol=1e-7)
+    steps = np.linalg.norm(np.diff(ordered, axis=0), axis=-1)
+    assert steps.max() < 6 * jitter * math.sqrt(2)
+    np.testing.assert_allclose(tags.estimates[2], ordered.mean(axis=(0, 1)), atol=1e-6)
+    np.testing.assert_allclose(info.slot_estimates[0], tags.estimates[2], atol=1e-7)
+
+
+def test_ps_slam_first_detection_matches_pf_slam_and_resampling_moves_histories():
+    """A new tag: the ring holds the initial particles once and the estimate is their mean. Then a
+    re-detection that rules out half the particles: the surviving lineages' histories move with them."""
+    config = _ps(j=4, lag=5)
+    params = ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(0.0, jnp.float32))
+    pose = np.array([0.0, 0.0, 0.0])
+    state = ps_slam.init(jax.random.PRNGKey(0), config, params, pose)
+    state, _ = ps_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(0, 0)]))
+    first = np.asarray(state.tags.particles[0])
+    np.testing.assert_allclose(state.tags.history[0, 0], first, atol=1e-7)
+    np.testing.assert_allclose(state.tags.estimates[0], first.mean(0), atol=1e-6)
+    # Replace the particles by two inside / two far outside reader 0's footprint, keep them in the ring.
+    pts = np.array([[-0.09, -0.03], [-0.08, -0.02], [0.5, 0.5], [-0.6, 0.4]], np.float32)
+    tags = state.tags._replace(
+        particles=state.tags.particles.at[0].set(pts), history=state.tags.history.at[0, 0].set(pts)
+    )
+    state = state._replace(tags=tags)
+    state, _ = ps_slam.step(jax.random.PRNGKey(2), state, config, params, STILL, _det([(0, 0)]))
+    hist = np.asarray(state.tags.history[0])  # jitter 0: each lineage repeats its point
+    np.testing.assert_allclose(hist[0], hist[1], atol=1e-7)
+    assert sorted(map(tuple, np.round(hist[1], 4))) == sorted(map(tuple, np.round(pts[[0, 0, 1, 1]], 4)))
+    np.testing.assert_allclose(state.tags.estimates[0], pts[:2].mean(0), atol=1e-6)
+
+
+def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
+    """Robot particles 1 m away from where the re-detected tags say it is: the step flags the
+    robot as lost, redraws it so the detecting readers sit over the tags, and leaves the map alone."""
+    config = _pf(i=200, j=4)
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    true_pose = np.array([3.0, 2.0, 0.0])
+    tag_a = true_pose[:2] + OFFSETS[0]
+    tag_b = true_pose[:2] + OFFSETS[7]
+
+    def kidnapped_state(config):
+        state = pf_slam.init(jax.random.PRNGKey(0), config, params, true_pose - np.array([1.0, 0.0, 0.0]))
+        t = state.tags
+        for n, p in ((0, tag_a), (1, tag_b)):
+            t = t._replace(
+                particles=t.particles.at[n].set(jnp.broadcast_to(jnp.asarray(p, jnp.float32), (4, 2))),
+                estimates=t.estimates.at[n].set(jnp.asarray(p, jnp.float32)),
+                counts=t.counts.at[n].set(3),
+            )
+        return state._replace(tags=t)
+
+    state = kidnapped_state(config)
+    before = np.asarray(state.tags.estimates)
+    new_state, info = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(0, 0), (1, 7)]))
+    assert bool(info.lost)
+    assert np.linalg.norm(np.asarray(info.estimate[:2]) - true_pose[:2]) < 0.03
+    np.testing.assert_array_equal(np.asarray(new_state.tags.estimates), before)
+    # Negative control: without recovery the particles stay a metre away.
+    config_off = _pf(i=200, j=4, recovery=False)
+    _, info_off = pf_slam.step(jax.random.PRNGKey(1), kidnapped_state(config_off), config_off, params, STILL, _det([(0, 0), (1, 7)]))
+    assert not bool(info_off.lost)
+    assert np.linalg.norm(np.asarray(info_off.estimate[:2]) - true_pose[:2]) > 0.9
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(num_particles=0), "num_particles"),
+        (dict(num_tag_particles=0), "num_tag_particles"),
+        (dict(max_tags=0), "max_tags"),
+        (dict(motion_model="teleport"), "motion_model"),
+        (dict(ess_threshold=0.0), "ess_threshold"),
+        (dict(recovery_log_likelihood=1.0), "recovery_log_likelihood"),
+    ],
+)
+def test_invalid_pf_config_is_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        pf_slam.PFSLAMConfig(**kwargs)
+
+
+def test_invalid_ps_config_and_params_are_refused():
+    with pytest.raises(ValueError, match="lag"):
+        ps_slam.PSSLAMConfig(lag=0)
+    config = _ps()
+    with pytest.raises(ValueError, match="tag_jitter_sd"):
+        ps_slam.init(jax.random.PRNGKey(0), config, ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(-1.0)), np.zeros(3))
+    with pytest.raises(ValueError, match="half_width"):
+        bad = SENSOR._replace(half_width=jnp.asarray(0.0))
+        pf_slam.init(jax.random.PRNGKey(0), _pf(), pf_slam.PFSLAMParams(NO_NOISE, bad), np.zeros(3))
+    with pytest.raises(ValueError, match="side"):
+        hf_rfid.reader_params(0.0)
+
+
+def test_bad_detections_and_capacity_are_refused():
+    config = _pf(max_tags=10)
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
+    det = _det([(1, 8)])  # reader 8 does not exist (8 readers: 0..7)
+    with pytest.raises(ValueError, match="readers"):
+        pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, det)
+    with pytest.raises(ValueError, match="same shape"):
+        pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, hf_rfid.TagDetections(jnp.zeros(3, jnp.int32), jnp.zeros(4, jnp.int32), jnp.zeros(4, bool)))
+    with pytest.raises(ValueError, match="max_tags ≥ 11"):
+        pf_slam.check_capacity(config, 11)
+    with pytest.raises(ValueError, match="same number of steps"):
+        dets = jax.tree_util.tree_map(lambda x: jnp.stack([x] * 3), _det([(1, 0)]))
+        pf_slam.run(jax.random.PRNGKey(1), config, params, jnp.stack([STILL] * 2), dets, state)

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import check_finite, check_positive, check_shape
+from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
 
 __all__ = [
     "HFReaderParams",
@@ -125,8 +125,7 @@ def default_reader_offsets(rows: int = 2, cols: int = 4, pitch: float = 0.06) ->
     Rows run along the robot's y axis, columns along x; the default is SPEC
     §3's two rows of four at 60 mm, reader ``b = r·cols + c``.
     """
-    if int(rows) < 1 or int(cols) < 1:
-        raise ValueError(f"rows and cols must be positive integers, got {rows!r} and {cols!r}")
+    rows, cols = check_positive_int("rows", rows), check_positive_int("cols", cols)
     if not pitch > 0:
         raise ValueError(f"pitch must be > 0 m, got {pitch!r}")
     xs = (np.arange(cols) - (cols - 1) / 2.0) * pitch

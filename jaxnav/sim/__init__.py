@@ -1,3 +1,4 @@
 """World and hardware simulators."""
 
 from jaxnav.sim import landmark_world as landmark_world
+from jaxnav.sim import tag_carpet as tag_carpet

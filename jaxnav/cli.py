@@ -1,4 +1,4 @@
-"""The ``jaxnav`` command line: ``jaxnav --version``, ``jaxnav demo``, ``jaxnav mrclam``."""
+"""The ``jaxnav`` command line: ``jaxnav --version``, ``jaxnav demo``, ``jaxnav mrclam``, ``jaxnav hf-slam``."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ from jaxnav._version import __version__
 
 # the help text lists these without importing the experiment; tests/test_cli.py checks they match
 _MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
+_HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
+_HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -87,6 +89,51 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_hf_slam(args: argparse.Namespace) -> int:
+    import jax
+    import numpy as np
+
+    from jaxnav.experiments import hf_slam as xp
+
+    if not args.reader_mm > 0:
+        print(f"jaxnav hf-slam: --reader-mm must be > 0, got {args.reader_mm:g}", file=sys.stderr)
+        return 2
+    try:
+        setting = xp.HFSetting(
+            density=args.density, reader_side=args.reader_mm / 1000.0, trajectory=args.trajectory, laps=args.laps,
+            random_steps=args.steps, robot_particles=args.robot_particles, tag_particles=args.tag_particles, lag=args.lag,
+        )
+        setting.sensor()
+    except ValueError as err:
+        print(f"jaxnav hf-slam: {err}", file=sys.stderr)
+        return 2
+    print(
+        f"jaxnav {__version__} hf-slam: {args.method} on {setting.density:g} tags/m² (pitch {1000 * setting.pitch:.0f} mm), "
+        f"{args.reader_mm:g} mm readers, {setting.trajectory} trajectory, {setting.robot_particles} robot particles, seed {args.seed}"
+    )
+    errors, world, result = xp.run_once(jax.random.PRNGKey(args.seed), args.method, setting)
+    run = world.run
+    steps = run.odometry.shape[0]
+    detections = int(np.asarray(run.detections.mask).sum())
+    dead = xp.dead_reckoning(run)
+    odo = 1000 * float(np.mean(np.linalg.norm(np.asarray(dead)[:, :2] - np.asarray(run.true_poses)[:, :2], axis=1)))
+    print(f"{steps} steps of {setting.dt:g} s, {detections} detections, {int(np.asarray(result.seen).sum())} tags mapped; "
+          f"odometry alone: dr = {odo:.1f} mm")
+    if np.asarray(run.kidnapped).any():
+        print(f"kidnapped at step {int(np.argmax(np.asarray(run.kidnapped)))}; recovery fired at steps "
+              f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}")
+    print(xp.format_errors([(args.method, errors)]))
+    if args.out:
+        path = f"{args.out}.png"
+        try:
+            xp.plot_run(setting, args.method, world, result, path)
+        except ImportError:
+            print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
+        else:
+            print(f"wrote {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxnav", description="Vectorised JAX particle filters for indoor localization and SLAM.")
     parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
@@ -106,6 +153,19 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
     mr.set_defaults(func=_cmd_mrclam)
+    hf = sub.add_parser("hf-slam", help="run PF-SLAM, PS-SLAM or FastSLAM on a simulated HF-RFID tag carpet ([W] ch. 3-4)")
+    hf.add_argument("--method", choices=_HF_METHODS, default="pf_slam", help="SLAM method (default pf_slam)")
+    hf.add_argument("--density", type=float, default=16.0, help="tags per m² (100, 16 or 4 in [W]; default 16)")
+    hf.add_argument("--reader-mm", type=float, default=60.0, help="reader footprint side in mm (60 in [W] ch. 3, 100-500 in ch. 4)")
+    hf.add_argument("--trajectory", choices=_HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)")
+    hf.add_argument("--laps", type=int, default=3, help="laps of the rectangle (after the kidnapping for 'kidnapping')")
+    hf.add_argument("--steps", type=int, default=2000, help="steps of 0.1 s of the random trajectory (default 2000)")
+    hf.add_argument("--robot-particles", type=int, default=500, help="robot particles I (default 500, as [W])")
+    hf.add_argument("--tag-particles", type=int, default=100, help="particles per tag J (default 100, as [W])")
+    hf.add_argument("--lag", type=int, default=20, help="PS-SLAM lag L (default 20)")
+    hf.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
+    hf.add_argument("--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)")
+    hf.set_defaults(func=_cmd_hf_slam)
     return parser
 
 

@@ -44,3 +44,10 @@ def test_mrclam_algorithm_list_matches_the_experiment():
     from jaxnav.experiments.mrclam import ALGORITHMS
 
     assert _MRCLAM_ALGORITHMS == ALGORITHMS
+
+
+def test_hf_slam_choices_match_the_experiment():
+    from jaxnav.cli import _HF_METHODS, _HF_TRAJECTORIES
+    from jaxnav.experiments.hf_slam import METHODS, TRAJECTORIES
+
+    assert _HF_METHODS == METHODS and _HF_TRAJECTORIES == TRAJECTORIES

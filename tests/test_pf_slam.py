@@ -225,6 +225,7 @@ def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
     new_state, info = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(0, 0), (1, 7)]))
     assert bool(info.lost)
     assert np.linalg.norm(np.asarray(info.estimate[:2]) - true_pose[:2]) < 0.03
+    assert abs(float(info.estimate[2])) < 0.3  # heading drawn uniformly, fixed by the two tags
     np.testing.assert_array_equal(np.asarray(new_state.tags.estimates), before)
     # Negative control: without recovery the particles stay a metre away.
     config_off = _pf(i=200, j=4, recovery=False)

@@ -42,7 +42,8 @@ Choices where [W] is silent (stated here, tested):
   tag), the robot is lost: its particles are redrawn around the detected
   tags (for each particle a re-detected slot is picked at random, a point
   uniform over that reader's footprint, and the position that puts the
-  reader over the tag estimate; heading = the particle's own plus
+  reader over the tag estimate; heading uniform, since the robot may have
+  been turned, or with ``recovery_heading_sd`` the particle's own plus
   ``N(0, recovery_heading_sd²)``), and no tag is updated in that step so a
   lost robot does not corrupt the map. ``info.lost`` flags such steps.
 * In place: every field written back must be computed *from* its gathered
@@ -129,8 +130,9 @@ def validate_common_config(config: Any) -> None:
         raise ValueError(f"recovery must be True or False, got {config.recovery!r}")
     if not np.isfinite(config.recovery_log_likelihood) or config.recovery_log_likelihood >= 0:
         raise ValueError(f"recovery_log_likelihood must be a negative number, got {config.recovery_log_likelihood!r}")
-    if not (np.isfinite(config.recovery_heading_sd) and config.recovery_heading_sd >= 0):
-        raise ValueError(f"recovery_heading_sd must be ≥ 0 rad, got {config.recovery_heading_sd!r}")
+    sd = config.recovery_heading_sd
+    if sd is not None and not (isinstance(sd, (int, float)) and np.isfinite(sd) and sd >= 0):
+        raise ValueError(f"recovery_heading_sd must be None (uniform heading) or a number ≥ 0 rad, got {sd!r}")
 
 
 def check_capacity(config: Any, num_tags: int) -> None:
@@ -211,7 +213,10 @@ def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.A
     logits = jnp.where(known, 0.0, -jnp.inf)
     pick = jax.random.categorical(k_pick, logits, shape=(n,))
     u = jax.random.uniform(k_foot, (n, 2), poses.dtype, -1.0, 1.0) * sensor.half_width
-    theta = weights.wrap_angle(poses[:, 2] + config.recovery_heading_sd * jax.random.normal(k_head, (n,), poses.dtype))
+    if config.recovery_heading_sd is None:
+        theta = jax.random.uniform(k_head, (n,), poses.dtype, -jnp.pi, jnp.pi)
+    else:
+        theta = weights.wrap_angle(poses[:, 2] + config.recovery_heading_sd * jax.random.normal(k_head, (n,), poses.dtype))
     body = offsets[pick] + u
     # tag = p + R(θ)·body  ⇒  p = tag − R(θ)·body
     offset_world = hf_rfid.world_frame(jnp.concatenate([jnp.zeros((n, 2), poses.dtype), theta[:, None]], axis=1), body)

@@ -82,7 +82,8 @@ class PFSLAMConfig:
         tag_ess_threshold: the same for a tag's particles at each detection; 1.0 = always ([W] Alg. 1).
         recovery: redraw the robot particles when it is lost (kidnapping, [W] §3.4.3; see ``_tag_slam``).
         recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
-        recovery_heading_sd: heading spread of redrawn particles (rad).
+        recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
+            been turned); a number: each keeps its own heading with this spread (rad).
     """
 
     num_particles: int = 500
@@ -94,7 +95,7 @@ class PFSLAMConfig:
     tag_ess_threshold: float = 1.0
     recovery: bool = True
     recovery_log_likelihood: float = -8.0
-    recovery_heading_sd: float = 0.05
+    recovery_heading_sd: float | None = None
 
     def __post_init__(self) -> None:
         _tag_slam.validate_common_config(self)

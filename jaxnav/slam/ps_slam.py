@@ -83,7 +83,7 @@ class PSSLAMConfig:
     tag_ess_threshold: float = 1.0
     recovery: bool = True
     recovery_log_likelihood: float = -8.0
-    recovery_heading_sd: float = 0.05
+    recovery_heading_sd: float | None = None
 
     def __post_init__(self) -> None:
         _tag_slam.validate_common_config(self)

@@ -1,0 +1,353 @@
+"""One HF-RFID SLAM method on one simulated setting: simulate, filter, score, draw ([W] ch. 3–4).
+
+Overview
+--------
+A :class:`HFSetting` fixes everything of one cell of [W]'s tables: tag
+density, reader footprint, trajectory, particle counts and the noise levels
+(ours where [W] gives none; listed below). :func:`run_once` is a pure
+function of ``(key, method, setting)``: it lays a jittered carpet, simulates
+the trajectory (:mod:`jaxnav.sim.tag_carpet`), runs PF-SLAM, PS-SLAM or
+FastSLAM on the odometry and detections, and scores the result like [W]; it
+jits and ``vmap``-s over keys, so many seeded runs are one call.
+
+Errors (:class:`Errors`, millimetres and radians as [W] prints them):
+
+* robot ``x``, ``y``: mean absolute error of the estimated position per axis
+  over all steps; ``theta``: mean absolute heading error; ``dr``: mean
+  distance between estimated and true position;
+* tag ``tx``, ``ty``, ``dt``: the same over the tags detected during the run,
+  at the end of the run.
+
+[W] does not define its columns; in Tables 4.1–4.2 ``dr`` exceeds
+``√(x² + y²)``, which holds for mean absolute errors and a mean distance
+(the norm of means is at most the mean of norms), so we use those. All runs
+start from the known true pose ([W] Alg. 1).
+
+Noise levels and sizes ([W] gives none, these are ours): odometry velocity
+noise σ = (20 mm/s, 20 mm/s, 0.01 rad/s) on 0.1 s steps (a random walk of about 0.5 % of the distance driven over one 7 m lap) ([W] eq. 3.6, world
+frame), installation jitter ±10 mm, β = 0.1 in [W] eq. 3.7, PS-SLAM tag jitter
+σ/10 with lag 20; a 3 m × 2.5 m carpet with the rectangle 2 m × 1.5 m driven
+at 200 mm/s, the random trajectory at 100–400 mm/s inside the carpet.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core.validation import check_choice, check_positive_int
+from jaxnav.core.weights import wrap_angle
+from jaxnav.models import hf_rfid
+from jaxnav.models.motion import OmniNoise
+from jaxnav.sim import tag_carpet as tc
+from jaxnav.slam import fastslam, pf_slam, ps_slam
+
+__all__ = [
+    "METHODS",
+    "TRAJECTORIES",
+    "HFSetting",
+    "World",
+    "MethodRun",
+    "Errors",
+    "make_world",
+    "run_method",
+    "score",
+    "run_once",
+    "detection_counts",
+    "format_errors",
+    "plot_run",
+]
+
+METHODS = ("pf_slam", "ps_slam", "fastslam")
+TRAJECTORIES = ("rectangle", "random", "kidnapping")
+
+
+@dataclass(frozen=True)
+class HFSetting:
+    """A simulated HF-RFID SLAM setting (hashable: a static argument of jitted functions).
+
+    Attributes:
+        density: tags/m² (100, 16, 4 in [W]).
+        reader_side: footprint side (m): 0.06 ([W] ch. 3), 0.1–0.5 ([W] §4.4.3).
+        trajectory: "rectangle" (driven ``laps`` times), "random" or "kidnapping" ([W] §3.4.3).
+        carpet: ``(w, h)`` of the carpet (m), from the origin.
+        rectangle: ``(x0, y0, width, height)`` of the rectangle (m).
+        laps: laps of the rectangle.
+        random_steps: steps of the random trajectory.
+        speed: rectangle speed (m/s); speed_range: random-trajectory speeds (m/s).
+        dt: step (s).
+        installation_jitter: tag installation error bound (m).
+        odometry_sd: σ of [W] eq. 3.6 (m/s, m/s, rad/s).
+        robot_particles, tag_particles: I and J (FastSLAM uses I).
+        lag: PS-SLAM lag L; smoother_jitter: PS-SLAM tag jitter (m), None = σ/10.
+        beta: β of [W] eq. 3.7.
+        fastslam_version: 1 or 2.
+    """
+
+    density: float = 16.0
+    reader_side: float = 0.06
+    trajectory: str = "rectangle"
+    carpet: tuple[float, float] = (3.0, 2.5)
+    rectangle: tuple[float, float, float, float] = (0.5, 0.5, 2.0, 1.5)
+    laps: int = 3
+    random_steps: int = 2000
+    speed: float = 0.2
+    speed_range: tuple[float, float] = (0.1, 0.4)
+    dt: float = 0.1
+    installation_jitter: float = 0.01
+    odometry_sd: tuple[float, float, float] = (0.02, 0.02, 0.01)
+    robot_particles: int = 500
+    tag_particles: int = 100
+    lag: int = 20
+    smoother_jitter: float | None = None
+    beta: float = hf_rfid.DEFAULT_BETA
+    fastslam_version: int = 1
+
+    def __post_init__(self) -> None:
+        check_choice("trajectory", self.trajectory, TRAJECTORIES)
+        for name in ("density", "reader_side", "speed", "dt"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a number > 0, got {value!r}")
+        for name in ("laps", "random_steps", "robot_particles", "tag_particles", "lag"):
+            check_positive_int(name, getattr(self, name))
+        check_choice("fastslam_version", self.fastslam_version, (1, 2))
+        if len(self.odometry_sd) != 3 or any(not (s >= 0) for s in self.odometry_sd):
+            raise ValueError(f"odometry_sd must be three numbers ≥ 0, got {self.odometry_sd!r}")
+        x0, y0, w, h = self.rectangle
+        inside = w > 0 and h > 0 and x0 >= 0 and y0 >= 0 and x0 + w <= self.carpet[0] and y0 + h <= self.carpet[1]
+        if self.trajectory != "random" and not inside:
+            raise ValueError(f"rectangle {self.rectangle!r} must lie inside the carpet (0, 0)–{self.carpet!r}")
+        if self.smoother_jitter is not None and not self.smoother_jitter >= 0:
+            raise ValueError(f"smoother_jitter must be ≥ 0 m or None, got {self.smoother_jitter!r}")
+
+    @property
+    def pitch(self) -> float:
+        return tc.density_to_pitch(self.density)
+
+    @property
+    def layout(self) -> tc.CarpetLayout:
+        """The carpet's lattice (the tag count fixes the filters' ``max_tags``)."""
+        p = self.pitch
+        nx = int(math.floor(self.carpet[0] / p + 1e-9)) + 1
+        ny = int(math.floor(self.carpet[1] / p + 1e-9)) + 1
+        return tc.CarpetLayout(p, nx, ny, (0.0, 0.0), self.installation_jitter)
+
+    def sensor(self) -> hf_rfid.HFReaderParams:
+        return hf_rfid.reader_params(self.reader_side, beta=self.beta)
+
+    def motion(self) -> OmniNoise:
+        return OmniNoise(jnp.asarray(self.odometry_sd, jnp.float32))
+
+
+class World(NamedTuple):
+    """A simulated world: the carpet and the run over it."""
+
+    carpet: tc.TagCarpet
+    run: tc.HFRun
+
+
+class MethodRun(NamedTuple):
+    """A filter's output on a :class:`World`.
+
+    Attributes:
+        estimates: ``[T, 3]`` robot estimate per step.
+        tags: ``[num_tags, 2]`` estimated tag positions (m), row = tag ID.
+        seen: ``[num_tags]`` bool, the method mapped the tag.
+        lost: ``[T]`` bool, kidnapping recovery fired (always False for FastSLAM).
+    """
+
+    estimates: jax.Array
+    tags: jax.Array
+    seen: jax.Array
+    lost: jax.Array
+
+
+class Errors(NamedTuple):
+    """[W]'s error columns (mm, rad); see the module docstring."""
+
+    x_mm: jax.Array
+    y_mm: jax.Array
+    theta_rad: jax.Array
+    dr_mm: jax.Array
+    tx_mm: jax.Array
+    ty_mm: jax.Array
+    dt_mm: jax.Array
+
+
+def _controls(key: jax.Array, s: HFSetting) -> tuple[jax.Array, jax.Array]:
+    x0, y0, w, h = s.rectangle
+    if s.trajectory == "rectangle":
+        return tc.rectangle_controls(w, h, s.speed, s.dt, s.laps, (x0, y0))
+    margin = 0.15  # keep the reader array over the carpet
+    return tc.random_controls(
+        key, (margin, margin, s.carpet[0] - margin, s.carpet[1] - margin), s.random_steps, s.speed_range, s.dt
+    )
+
+
+def make_world(key: jax.Array, setting: HFSetting) -> World:
+    """Lay a jittered carpet and simulate ``setting.trajectory`` over it (traceable: ``vmap`` over keys)."""
+    k_carpet, k_path, k_odo = jax.random.split(key, 3)
+    carpet = tc.make_carpet(k_carpet, setting.carpet, pitch=setting.pitch, jitter=setting.installation_jitter)
+    sensor = setting.sensor()
+    if setting.trajectory == "kidnapping":
+        x0, y0, w, h = setting.rectangle
+        run = tc.kidnapping_scenario(
+            k_odo, carpet, sensor, setting.motion(), w, h, (x0, y0), setting.speed, setting.dt,
+            laps_after=setting.laps, footprint_side=setting.reader_side,
+        )
+    else:
+        start, controls = _controls(k_path, setting)
+        run = tc.simulate(k_odo, carpet, sensor, start, controls, setting.motion(), footprint_side=setting.reader_side)
+    return World(carpet, run)
+
+
+def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) -> MethodRun:
+    """Run ``method`` (one of :data:`METHODS`) on ``world``'s odometry and detections."""
+    check_choice("method", method, METHODS)
+    k_init, k_run = jax.random.split(key)
+    run = world.run
+    sensor = setting.sensor()
+    num_tags = world.carpet.layout.num_tags
+    start = run.start_pose
+    if method == "fastslam":
+        config = fastslam.FastSLAMConfig(
+            num_particles=setting.robot_particles, num_landmarks=num_tags, version=setting.fastslam_version,
+            motion_model="omni", observation_model="hf_footprint",
+        )
+        params = fastslam.FastSLAMParams(setting.motion(), sensor)
+        state = fastslam.init(k_init, config, params, start)
+        obs = hf_rfid.landmark_observations(run.detections, sensor)
+        final, trace = fastslam.run(k_run, config, params, run.odometry, obs, state)
+        tags, seen = fastslam.map_estimate(final)
+        return MethodRun(trace.estimate, tags, seen, jnp.zeros(run.odometry.shape[0], bool))
+    if method == "pf_slam":
+        module = pf_slam
+        config = pf_slam.PFSLAMConfig(setting.robot_particles, setting.tag_particles, num_tags)
+        params = pf_slam.PFSLAMParams(setting.motion(), sensor)
+    else:
+        module = ps_slam
+        config = ps_slam.PSSLAMConfig(setting.robot_particles, setting.tag_particles, num_tags, lag=setting.lag)
+        jitter = ps_slam.default_jitter(sensor) if setting.smoother_jitter is None else jnp.asarray(setting.smoother_jitter, jnp.float32)
+        params = ps_slam.PSSLAMParams(setting.motion(), sensor, jitter)
+    module.check_capacity(config, num_tags)
+    state = module.init(k_init, config, params, start)
+    final, trace = module.run(k_run, config, params, run.odometry, run.detections, state)
+    tags, seen = module.map_estimate(final)
+    return MethodRun(trace.estimate, tags, seen, trace.lost)
+
+
+def detection_counts(run: tc.HFRun, num_tags: int) -> jax.Array:
+    """``[num_tags]`` number of steps in which each tag was detected (by any reader)."""
+    det = run.detections
+    t = det.ids.shape[0]
+    # one count per (step, tag), however many readers saw it
+    per_step = jnp.zeros((t, num_tags), bool).at[jnp.arange(t)[:, None], jnp.where(det.mask, det.ids, num_tags)].set(True, mode="drop")
+    return jnp.sum(per_step, axis=0)
+
+
+def score(world: World, result: MethodRun) -> Errors:
+    """[W]'s errors of one run (module docstring), in mm and rad."""
+    truth = world.run.true_poses
+    e = result.estimates[:, :2] - truth[:, :2]
+    dtheta = jnp.abs(wrap_angle(result.estimates[:, 2] - truth[:, 2]))
+    true_tags = tc.tag_positions(world.carpet)
+    seen = result.seen
+    n = jnp.maximum(jnp.sum(seen), 1)
+    et = jnp.where(seen[:, None], result.tags - true_tags, 0.0)
+    mm = 1000.0
+    return Errors(
+        x_mm=mm * jnp.mean(jnp.abs(e[:, 0])),
+        y_mm=mm * jnp.mean(jnp.abs(e[:, 1])),
+        theta_rad=jnp.mean(dtheta),
+        dr_mm=mm * jnp.mean(jnp.linalg.norm(e, axis=1)),
+        tx_mm=mm * jnp.sum(jnp.abs(et[:, 0])) / n,
+        ty_mm=mm * jnp.sum(jnp.abs(et[:, 1])) / n,
+        dt_mm=mm * jnp.sum(jnp.linalg.norm(et, axis=1)) / n,
+    )
+
+
+def run_once(key: jax.Array, method: str, setting: HFSetting) -> tuple[Errors, World, MethodRun]:
+    """Simulate, filter and score one seeded run: ``(errors, world, result)``. Pure; ``vmap`` over keys."""
+    k_world, k_filter = jax.random.split(key)
+    world = make_world(k_world, setting)
+    result = run_method(k_filter, method, setting, world)
+    return score(world, result), world, result
+
+
+def dead_reckoning(run: tc.HFRun) -> jax.Array:
+    """``[T, 3]`` odometry integrated from the start pose ([W] eq. 3.6 without noise)."""
+    return tc.integrate_controls(run.start_pose, run.odometry, "omni")
+
+
+def format_errors(rows: list[tuple[str, Any]]) -> str:
+    """A table like [W]'s: one row per ``(label, Errors)``."""
+    head = f"{'method':<16}{'x [mm]':>9}{'y [mm]':>9}{'θ [rad]':>9}{'dr [mm]':>9}{'tx [mm]':>9}{'ty [mm]':>9}{'dt [mm]':>9}"
+    lines = [head, "-" * len(head)]
+    for label, e in rows:
+        vals = [float(v) for v in e]
+        lines.append(
+            f"{label:<16}{vals[0]:>9.1f}{vals[1]:>9.1f}{vals[2]:>9.3f}{vals[3]:>9.1f}{vals[4]:>9.1f}{vals[5]:>9.1f}{vals[6]:>9.1f}"
+        )
+    return "\n".join(lines)
+
+
+def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:
+    """Path and map (left), robot error over time (middle), tag error against detections (right); a PNG at ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run = world.run
+    truth = np.asarray(run.true_poses)
+    est = np.asarray(result.estimates)
+    dr = np.asarray(dead_reckoning(run))
+    tags = np.asarray(tc.tag_positions(world.carpet))
+    seen = np.asarray(result.seen, bool)
+    mapped = np.asarray(result.tags)
+    counts = np.asarray(detection_counts(run, tags.shape[0]))
+    times = np.arange(truth.shape[0]) * setting.dt
+
+    fig, (ax_map, ax_err, ax_tag) = plt.subplots(1, 3, figsize=(17, 5.2))
+    ax_map.plot(tags[:, 0], tags[:, 1], ".", color="0.75", ms=3, label="tags (truth)")
+    ax_map.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="true path")
+    ax_map.plot(dr[:, 0], dr[:, 1], "-", color="tab:gray", lw=0.8, label="odometry")
+    ax_map.plot(est[:, 0], est[:, 1], "-", color="tab:blue", lw=1, label=f"{method} path")
+    ax_map.plot(tags[seen, 0], tags[seen, 1], "o", mfc="none", color="k", ms=5, label="detected tags (truth)")
+    ax_map.plot(mapped[seen, 0], mapped[seen, 1], "x", color="tab:red", ms=5, label=f"{method} map")
+    kid = np.nonzero(np.asarray(run.kidnapped))[0]
+    for k in kid:
+        ax_map.plot(*truth[k - 1, :2], "v", color="tab:orange", ms=10, label="kidnapped here (B)")
+        ax_map.plot(*truth[k, :2], "^", color="tab:orange", ms=10, label="put down here (C)")
+    ax_map.set_aspect("equal")
+    ax_map.set_xlabel("x (m)")
+    ax_map.set_ylabel("y (m)")
+    ax_map.set_title(f"{method}: {setting.density:g} tags/m², {1000 * setting.reader_side:g} mm readers, {setting.trajectory}")
+    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
+
+    err = 1000 * np.linalg.norm(est[:, :2] - truth[:, :2], axis=1)
+    err_dr = 1000 * np.linalg.norm(dr[:, :2] - truth[:, :2], axis=1)
+    ax_err.plot(times, err_dr, color="tab:gray", lw=0.8, label="odometry")
+    ax_err.plot(times, err, color="tab:blue", lw=1, label=method)
+    for k in kid:
+        ax_err.axvline(times[k], color="tab:orange", ls="--", lw=1, label="kidnapping")
+    ax_err.set_yscale("log")
+    ax_err.set_xlabel("time (s)")
+    ax_err.set_ylabel("robot position error (mm)")
+    ax_err.set_title("robot error")
+    ax_err.legend(fontsize=8)
+
+    te = 1000 * np.linalg.norm(mapped - tags, axis=1)
+    ax_tag.plot(counts[seen], te[seen], "o", ms=3, alpha=0.6, color="tab:red")
+    ax_tag.set_xlabel("detections of the tag (steps)")
+    ax_tag.set_ylabel("final tag error (mm)")
+    ax_tag.set_title("tag error against detections")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -134,6 +134,40 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_experiments(args: argparse.Namespace) -> int:
+    import jax
+
+    from jaxnav.experiments import registry
+
+    if args.action == "list":
+        from jaxnav.experiments import _all  # noqa: F401
+
+        for name in sorted(registry.EXPERIMENTS):
+            print(f"{name:<12} {registry.EXPERIMENTS[name].title}")
+        return 0
+    if not args.name:
+        print("jaxnav experiments run: name an experiment (see 'jaxnav experiments list')", file=sys.stderr)
+        return 2
+    if args.runs < 1 or args.chunk < 1:
+        print("jaxnav experiments run: --runs and --chunk must be positive", file=sys.stderr)
+        return 2
+    try:
+        exp = registry.get(args.name)
+    except ValueError as err:
+        print(f"jaxnav experiments: {err}", file=sys.stderr)
+        return 2
+    print(f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
+          f"output in {args.out}{' (quick variant)' if args.quick else ''}")
+    try:
+        result = registry.run(exp.name, args.runs, jax.random.PRNGKey(args.seed), args.out, quick=args.quick,
+                              chunk_size=args.chunk, progress=not args.no_progress)
+    except ValueError as err:
+        print(f"jaxnav experiments: {err}", file=sys.stderr)
+        return 2
+    print(exp.render(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxnav", description="Vectorised JAX particle filters for indoor localization and SLAM.")
     parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
@@ -166,6 +200,16 @@ def build_parser() -> argparse.ArgumentParser:
     hf.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
     hf.add_argument("--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)")
     hf.set_defaults(func=_cmd_hf_slam)
+    xp = sub.add_parser("experiments", help="reproduce [W]'s tables and figures with batch Monte Carlo")
+    xp.add_argument("action", choices=("list", "run"), help="list the experiments, or run one")
+    xp.add_argument("name", nargs="?", help="experiment name (see 'list')")
+    xp.add_argument("--runs", type=int, default=20, help="seeded runs per setting (default 20)")
+    xp.add_argument("--out", default="jaxnav-experiments", help="output directory for JSON, Markdown and PNG")
+    xp.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
+    xp.add_argument("--chunk", type=int, default=25, help="runs per vmapped call (bounds memory; default 25)")
+    xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
+    xp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    xp.set_defaults(func=_cmd_experiments)
     return parser
 
 

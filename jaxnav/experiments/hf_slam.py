@@ -56,6 +56,7 @@ __all__ = [
     "Errors",
     "make_world",
     "run_method",
+    "filter_world",
     "score",
     "run_once",
     "detection_counts",
@@ -209,6 +210,11 @@ def make_world(key: jax.Array, setting: HFSetting) -> World:
 
 def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) -> MethodRun:
     """Run ``method`` (one of :data:`METHODS`) on ``world``'s odometry and detections."""
+    return filter_world(key, method, setting, world)[0]
+
+
+def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) -> tuple[MethodRun, Any]:
+    """:func:`run_method` and the filter's whole per-step trace (``SLAMInfo`` or ``FastSLAMInfo``)."""
     check_choice("method", method, METHODS)
     k_init, k_run = jax.random.split(key)
     run = world.run
@@ -225,7 +231,7 @@ def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) ->
         obs = hf_rfid.landmark_observations(run.detections, sensor)
         final, trace = fastslam.run(k_run, config, params, run.odometry, obs, state)
         tags, seen = fastslam.map_estimate(final)
-        return MethodRun(trace.estimate, tags, seen, jnp.zeros(run.odometry.shape[0], bool))
+        return MethodRun(trace.estimate, tags, seen, jnp.zeros(run.odometry.shape[0], bool)), trace
     if method == "pf_slam":
         module = pf_slam
         config = pf_slam.PFSLAMConfig(setting.robot_particles, setting.tag_particles, num_tags)
@@ -239,7 +245,7 @@ def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) ->
     state = module.init(k_init, config, params, start)
     final, trace = module.run(k_run, config, params, run.odometry, run.detections, state)
     tags, seen = module.map_estimate(final)
-    return MethodRun(trace.estimate, tags, seen, trace.lost)
+    return MethodRun(trace.estimate, tags, seen, trace.lost), trace
 
 
 def detection_counts(run: tc.HFRun, num_tags: int) -> jax.Array:

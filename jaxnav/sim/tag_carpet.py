@@ -858,7 +858,8 @@ def kidnapping_scenario(
         raise ValueError(f"laps_after must be an integer ≥ 0, got {laps_after!r}")
     if start is None:
         start = (carpet.layout.origin[0] + 0.25, carpet.layout.origin[1] + 0.25)
-    start_pose, lap = rectangle_controls(width, height, speed, dt, 1, start, turn_at_corners)
+    with jax.ensure_compile_time_eval():  # the lap is built on the host, also when traced under jit/vmap
+        start_pose, lap = rectangle_controls(width, height, speed, dt, 1, start, turn_at_corners)
     lap_np = np.asarray(lap, np.float64)
     num = lap_np.shape[0]
     i_b = min(num - 1, max(1, int(round(kidnap_from * num))))

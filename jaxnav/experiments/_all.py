@@ -1,0 +1,4 @@
+"""Imports every module that registers an experiment (see :mod:`jaxnav.experiments.registry`)."""
+
+from jaxnav.experiments import figures as figures  # noqa: F401
+from jaxnav.experiments import tables as tables  # noqa: F401

@@ -1,0 +1,281 @@
+"""[W]'s figures with a curve to reproduce: Fig. 3.5, Fig. 3.7, Fig. 4.4 and the kidnapping of Fig. 3.12.
+
+Each is a registered experiment (:mod:`jaxnav.experiments.registry`). A curve
+is a list of points, each the mean over ``R`` seeded runs with its 95 %
+interval. [W] prints these figures as images only, so the result carries no
+thesis numbers; the claim each figure supports is in ``notes`` and is what
+the tests check:
+
+* ``fig-3.5``: PF-SLAM's tag error falls with the number of times the tag was
+  detected (random trajectory, 16 tags/m², 60 mm readers).
+* ``fig-3.7``: robot and tag errors against the number of robot particles,
+  PF-SLAM against FastSLAM (Table 3.1 rectangle, 16 tags/m²): PF-SLAM is
+  accurate from few particles, FastSLAM needs many.
+* ``fig-4.4``: errors against the reader footprint, 100–500 mm (4 tags/m²,
+  rectangles): PS ≈ PF below ~180 mm, PS better above, FastSLAM worst.
+* ``kidnapping``: the robot error over time around a kidnapping ([W]
+  §3.4.3, Fig. 3.12b), PF-SLAM and PS-SLAM.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.experiments import hf_slam as hf
+from jaxnav.experiments import sweep as sw
+from jaxnav.experiments.registry import Cell, Experiment, register
+from jaxnav.experiments.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, quick_setting
+from jaxnav.sim import tag_carpet as tc
+
+__all__ = ["curve_experiment", "DETECTION_BINS", "PARTICLES", "READER_SIDES"]
+
+DETECTION_BINS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
+"""Fig. 3.5: the n-th detection of a tag, grouped in bins ``[b_k, b_{k+1})``."""
+PARTICLES = (100, 250, 500, 1000, 2000, 4000)
+"""Fig. 3.7: robot particle counts."""
+READER_SIDES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
+"""Fig. 4.4: reader footprint sides (m)."""
+
+
+def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray]) -> dict:
+    """``{"x", "mean", "ci95"}`` of one curve from per-point arrays of per-run values (NaN = no value)."""
+    means, cis = [], []
+    for values in per_run:
+        m, lo, hi = sw.mean_ci(values)
+        means.append(m)
+        cis.append([lo, hi])
+    return {"x": list(map(float, x)), "mean": means, "ci95": cis}
+
+
+def render_curves(result: dict) -> str:
+    lines = [f"{result['experiment']}: {result['title']}  ({result['runs']} runs per point"
+             f"{', quick variant' if result.get('quick') else ''}; mean [95 % interval])"]
+    for c in result["curves"]:
+        lines.append(f"  {METHOD_LABELS.get(c['method'], c['method'])}, {c['quantity']}:")
+        every = max(1, len(c["x"]) // 12)  # long curves (the kidnapping) are printed thinned; the JSON has them all
+        for x, m, (lo, hi) in list(zip(c["x"], c["mean"], c["ci95"]))[::every]:
+            lines.append(f"    {result['x_label']} = {x:g}: {m:8.1f} [{lo:.1f}, {hi:.1f}]")
+        if "before_mm" in c:
+            lines.append(f"    mean error over the 5 s before: {c['before_mm']:.1f} mm, over 5–15 s after: {c['after_mm']:.1f} mm")
+    if result.get("notes"):
+        lines.append(result["notes"])
+    return "\n".join(lines)
+
+
+def markdown_curves(result: dict) -> str:
+    xs = result["curves"][0]["x"]
+    head = "| method | quantity | " + " | ".join(f"{result['x_label']} = {x:g}" for x in xs) + " |"
+    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])",
+             "", head, "|" + " --- |" * (2 + len(xs))]
+    for c in result["curves"]:
+        cells = [f"{m:.1f} [{lo:.1f}, {hi:.1f}]" for m, (lo, hi) in zip(c["mean"], c["ci95"])]
+        lines.append(f"| {METHOD_LABELS.get(c['method'], c['method'])} | {c['quantity']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot_curves(result: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    quantities = sorted({c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q))
+    fig, axes = plt.subplots(1, len(quantities), figsize=(6 * len(quantities), 4.4), squeeze=False)
+    for ax, q in zip(axes[0], quantities):
+        for c in (c for c in result["curves"] if c["quantity"] == q):
+            x, m = np.array(c["x"]), np.array(c["mean"], float)
+            ci = np.array(c["ci95"], float)
+            ax.plot(x, m, "o-", ms=3, label=METHOD_LABELS.get(c["method"], c["method"]))
+            ax.fill_between(x, ci[:, 0], ci[:, 1], alpha=0.2)
+        ax.set_xlabel(result["x_label"])
+        ax.set_ylabel(q)
+        if result.get("x_log"):
+            ax.set_xscale("log")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{result['experiment']}: {result['title']} ({result['runs']} runs, 95 % CI)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def curve_experiment(name, title, x_label, cells, summarize, notes="", x_log=False) -> Experiment:
+    """Build and register a figure experiment."""
+
+    def summarize_all(raw, cell_list, quick):
+        return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}
+
+    return register(Experiment(name, title, cells, summarize_all, render_curves, markdown_curves, plot_curves, notes))
+
+
+# ---------------------------------------------------------------------------
+# Fig. 3.5: tag error against detections
+
+
+class TagErrorBins(NamedTuple):
+    sums: jax.Array  # [bins] summed tag error (mm) of the estimates after the n-th detection, n in the bin
+    counts: jax.Array  # [bins]
+
+
+def _fig35_setting(quick: bool) -> hf.HFSetting:
+    s = hf.HFSetting(density=16.0, reader_side=0.06, trajectory="random", carpet=(1.5, 1.5), random_steps=2000)
+    return replace(s, **{**QUICK, "carpet": (1.2, 1.2), "random_steps": 600}) if quick else s
+
+
+def _fig35_fn(setting: hf.HFSetting):
+    edges = jnp.asarray(DETECTION_BINS + (1 << 30,))
+
+    def fn(key):
+        k_world, k_filter = jax.random.split(key)
+        world = hf.make_world(k_world, setting)
+        _, trace = hf.filter_world(k_filter, "pf_slam", setting, world)
+        tags = tc.tag_positions(world.carpet)
+        valid = trace.slot_ids >= 0
+        err = 1000 * jnp.linalg.norm(trace.slot_estimates - tags[jnp.clip(trace.slot_ids, 0)], axis=-1)
+        b = jnp.searchsorted(edges, trace.slot_counts, side="right") - 1  # bin of each (step, slot)
+        one_hot = (b[..., None] == jnp.arange(len(DETECTION_BINS))) & valid[..., None]
+        return TagErrorBins(jnp.sum(jnp.where(one_hot, err[..., None], 0.0), axis=(0, 1)), jnp.sum(one_hot, axis=(0, 1)))
+
+    return fn
+
+
+def _fig35_cells(quick):
+    s = _fig35_setting(quick)
+    return [Cell("pf_slam", "pf_slam", "pf_slam", s, _fig35_fn(s))]
+
+
+def _fig35_summary(raw, cells, quick):
+    r = raw["pf_slam"]
+    per_run = np.where(r["counts"] > 0, r["sums"] / np.maximum(r["counts"], 1), np.nan)  # [R, bins]
+    curve = _summaries(DETECTION_BINS, [per_run[:, k] for k in range(per_run.shape[1])])
+    curve["samples"] = r["counts"].sum(axis=0).tolist()
+    return [{"method": "pf_slam", "quantity": "tag error after the n-th detection (mm)", **curve}]
+
+
+curve_experiment(
+    "fig-3.5", "PF-SLAM tag error against the number of detections ([W] Fig. 3.5)", "detections n",
+    _fig35_cells, _fig35_summary, x_log=True,
+    notes="[W]: the error falls as a tag is detected from more places; it converges slowly after ~65 detections.",
+)
+
+
+# ---------------------------------------------------------------------------
+# Fig. 3.7: errors against robot particles
+
+
+def _fig37_cells(quick):
+    base = hf.HFSetting(density=16.0, reader_side=0.06, trajectory="rectangle")
+    counts = (50, 200) if quick else PARTICLES
+    out = []
+    for method in ("pf_slam", "fastslam"):
+        for n in counts:
+            s = replace(quick_setting(base) if quick else base, robot_particles=n)
+            out.append(Cell(f"{method}|{n}", str(n), method, s))
+    return out
+
+
+def _fig37_summary(raw, cells, quick):
+    curves = []
+    for method in ("pf_slam", "fastslam"):
+        members = [c for c in cells if c.method == method]
+        xs = [c.setting.robot_particles for c in members]
+        for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
+            curves.append({"method": method, "quantity": label, **_summaries(xs, [raw[c.id][col] for c in members])})
+    return curves
+
+
+curve_experiment(
+    "fig-3.7", "Errors against robot particles, PF-SLAM vs FastSLAM, 16 tags/m² rectangle ([W] Fig. 3.7)",
+    "robot particles", _fig37_cells, _fig37_summary, x_log=True,
+    notes="[W]: PF-SLAM is accurate and stable from few particles; FastSLAM's errors are large with few and settle with many.",
+)
+
+
+# ---------------------------------------------------------------------------
+# Fig. 4.4: errors against reader footprint
+
+
+def _fig44_cells(quick):
+    sides = (0.1, 0.3) if quick else READER_SIDES
+    rects = FIVE_RECTANGLES[:1] if quick else FIVE_RECTANGLES
+    out = []
+    for method in ("ps_slam", "pf_slam", "fastslam"):
+        for side in sides:
+            for i, rect in enumerate(rects):
+                s = hf.HFSetting(density=4.0, reader_side=side, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=rect)
+                out.append(Cell(f"{method}|{side:g}|{i}", f"{side:g}", method, quick_setting(s) if quick else s))
+    return out
+
+
+def _fig44_summary(raw, cells, quick):
+    curves = []
+    for method in ("ps_slam", "pf_slam", "fastslam"):
+        sides = sorted({c.setting.reader_side for c in cells if c.method == method})
+        for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
+            per_point = [np.concatenate([raw[c.id][col] for c in cells if c.method == method and c.setting.reader_side == s])
+                         for s in sides]
+            curves.append({"method": method, "quantity": label, **_summaries([1000 * s for s in sides], per_point)})
+    return curves
+
+
+curve_experiment(
+    "fig-4.4", "Errors against the reader footprint, 4 tags/m², rectangles ([W] Fig. 4.4)", "reader side (mm)",
+    _fig44_cells, _fig44_summary,
+    notes="[W]: PS ≈ PF below ~180 mm, PS better above; FastSLAM worst throughout. Each point pools the five rectangles.",
+)
+
+
+# ---------------------------------------------------------------------------
+# kidnapping ([W] §3.4.3, Fig. 3.12)
+
+
+class KidnapCurve(NamedTuple):
+    error_mm: jax.Array  # [T] robot position error per step
+    kidnap_step: jax.Array
+
+
+def _kidnap_setting(quick):
+    s = hf.HFSetting(density=16.0, reader_side=0.06, trajectory="kidnapping", laps=1)
+    return replace(s, robot_particles=200, tag_particles=30) if quick else s
+
+
+def _kidnap_fn(method, setting):
+    def fn(key):
+        k_world, k_filter = jax.random.split(key)
+        world = hf.make_world(k_world, setting)
+        result = hf.run_method(k_filter, method, setting, world)
+        err = 1000 * jnp.linalg.norm(result.estimates[:, :2] - world.run.true_poses[:, :2], axis=1)
+        return KidnapCurve(err, jnp.argmax(world.run.kidnapped))
+
+    return fn
+
+
+def _kidnap_cells(quick):
+    s = _kidnap_setting(quick)
+    return [Cell(m, m, m, s, _kidnap_fn(m, s)) for m in ("pf_slam", "ps_slam")]
+
+
+def _kidnap_summary(raw, cells, quick):
+    curves = []
+    for c in cells:
+        err = raw[c.id]["error_mm"]  # [R, T]
+        k = int(raw[c.id]["kidnap_step"][0])
+        steps = err.shape[1]
+        window = range(max(0, k - 100), min(steps, k + 300), 5)
+        dt = c.setting.dt
+        curves.append({"method": c.method, "quantity": "robot error (mm)",
+                       **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window]),
+                       "before_mm": sw.mean_ci(err[:, max(0, k - 50):k].mean(axis=1))[0],
+                       "after_mm": sw.mean_ci(err[:, k + 50:k + 150].mean(axis=1))[0]})
+    return curves
+
+
+curve_experiment(
+    "kidnapping", "Robot error around a kidnapping, 16 tags/m², 60 mm readers ([W] §3.4.3, Fig. 3.12)",
+    "time since the kidnapping (s)", _kidnap_cells, _kidnap_summary,
+    notes="[W]: the error jumps when the robot is kidnapped and returns to its level before within a short time.",
+)

@@ -1,0 +1,204 @@
+"""[W]'s error tables (3.1, 3.2, 4.1, 4.2) as registered experiments.
+
+Each table row is a method on a setting; a row's value in a column is the
+mean over the row's runs with its 95 % interval, printed beside [W]'s single
+run. The per-run errors are those of :func:`jaxnav.experiments.hf_slam.score`
+(robot x, y, θ, distance over all steps; tag x, y, distance at the end, mm
+and rad). Settings and noise levels are listed in
+:mod:`jaxnav.experiments.hf_slam`; the quick variants shorten the trajectory
+and cut the particles so that the test suite runs them in seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from jaxnav.experiments import hf_slam as hf
+from jaxnav.experiments.registry import ERROR_COLUMNS, Cell, Experiment, register, summarize_column
+
+__all__ = ["TableRow", "table_experiment", "QUICK", "quick_setting", "setting_label", "FIVE_RECTANGLES"]
+
+COLUMN_HEADS = ("x [mm]", "y [mm]", "θ [rad]", "dr [mm]", "tx [mm]", "ty [mm]", "dt [mm]")
+METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
+
+QUICK = dict(robot_particles=100, tag_particles=30, laps=1, random_steps=300)
+"""What the quick variants change: particles, laps, random-trajectory length (and a smaller world)."""
+
+FIVE_RECTANGLES = (
+    (0.5, 0.5, 2.0, 1.5),
+    (0.75, 0.5, 2.5, 1.0),
+    (0.5, 0.75, 1.5, 2.0),
+    (1.0, 1.0, 2.25, 1.25),
+    (0.6, 0.6, 1.75, 1.75),
+)
+"""The five predetermined rectangles of [W] §4.4.1 (ours: [W] does not give them), ``(x0, y0, w, h)`` in m,
+on a 4 m × 3.5 m carpet; perimeters 6.5–7.5 m."""
+
+
+class TableRow:
+    """One row of a table: a method on one or more settings (pooled), and [W]'s values."""
+
+    def __init__(self, label: str, method: str, settings: Sequence[hf.HFSetting], paper: Sequence[float | None]):
+        self.label, self.method, self.settings, self.paper = label, method, tuple(settings), tuple(paper)
+
+
+def setting_label(s: hf.HFSetting) -> dict:
+    """The JSON ``setting`` of a row: density, reader size, trajectory."""
+    return {"density": s.density, "reader_mm": round(1000 * s.reader_side, 3), "trajectory": s.trajectory}
+
+
+def quick_setting(s: hf.HFSetting) -> hf.HFSetting:
+    """The seconds-long variant of a setting: a smaller world, one lap, fewer particles."""
+    q = replace(s, **QUICK)
+    if s.trajectory == "random":
+        return replace(q, carpet=(1.5, 1.5))
+    x0, y0, w, h = s.rectangle
+    scale = 0.5
+    return replace(q, carpet=(min(s.carpet[0], x0 + scale * w + 0.5), min(s.carpet[1], y0 + scale * h + 0.5)),
+                   rectangle=(x0, y0, scale * w, scale * h))
+
+
+def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str = "") -> Experiment:
+    """Build and register a table experiment from its rows."""
+
+    def cells(quick: bool) -> list[Cell]:
+        out = []
+        for row in rows:
+            for i, s in enumerate(row.settings):
+                s = quick_setting(s) if quick else s
+                out.append(Cell(f"{row.label}|{row.method}|{i}", row.label, row.method, s))
+        return out
+
+    def summarize(raw: dict, cell_list: list[Cell], quick: bool) -> dict:
+        out_rows = []
+        for row in rows:
+            members = [c for c in cell_list if c.row == row.label and c.method == row.method]
+            entry = {"row": row.label, "setting": setting_label(members[0].setting), "method": row.method,
+                     "cells": len(members)}
+            for col, paper in zip(ERROR_COLUMNS, row.paper):
+                values = np.concatenate([raw[c.id][col] for c in members])
+                entry[col] = summarize_column(values, paper)
+            out_rows.append(entry)
+        return {"rows": out_rows, "notes": notes}
+
+    return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes))
+
+
+def _fmt(col: str, v: float | None) -> str:
+    if v is None or not np.isfinite(v):
+        return "–"
+    return f"{v:.3f}" if col == "theta_rad" else f"{v:.1f}"
+
+
+def render_table(result: dict) -> str:
+    """Terminal table: per row, ours (mean ± half-interval) and [W]'s value."""
+    lines = [f"{result['experiment']}: {result['title']}  ({result['runs']} runs per setting"
+             f"{', quick variant' if result.get('quick') else ''}; ours = mean ± 95 % half-interval, [W] = thesis)"]
+    head = f"{'setting':<22}{'method':<10}{'':<5}" + "".join(f"{h:>16}" for h in COLUMN_HEADS)
+    lines += [head, "-" * len(head)]
+    for r in result["rows"]:
+        s = r["setting"]
+        label = f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
+        ours = "".join(f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>16}"
+                       for c in ERROR_COLUMNS)
+        paper = "".join(f"{_fmt(c, r[c]['paper']):>16}" for c in ERROR_COLUMNS)
+        lines.append(f"{label:<22}{METHOD_LABELS[r['method']]:<10}{'ours':<5}{ours}")
+        lines.append(f"{'':<22}{'':<10}{'[W]':<5}{paper}")
+    return "\n".join(lines)
+
+
+def markdown_table(result: dict) -> str:
+    """Markdown table: ``ours [lo, hi] ([W] value)`` per column."""
+    head = "| setting | method | " + " | ".join(COLUMN_HEADS) + " |"
+    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per setting; "
+             "mean [95 % interval] (thesis value))", "", head, "|" + " --- |" * (2 + len(COLUMN_HEADS))]
+    for r in result["rows"]:
+        s = r["setting"]
+        cells = []
+        for c in ERROR_COLUMNS:
+            v = r[c]
+            cells.append(f"{_fmt(c, v['mean'])} [{_fmt(c, v['ci95'][0])}, {_fmt(c, v['ci95'][1])}] ({_fmt(c, v['paper'])})")
+        lines.append(f"| {s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']} | "
+                     f"{METHOD_LABELS[r['method']]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot_table(result: dict, path: str) -> None:
+    """Robot and tag distance errors per row (ours with 95 % intervals, [W] as markers)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = result["rows"]
+    labels = [f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}" for r in rows]
+    x = np.arange(len(rows))
+    fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.6 * len(rows) + 3), 4.2))
+    for ax, col, what in zip(axes, ("dr_mm", "dt_mm"), ("robot error dr", "tag error dt")):
+        means = np.array([r[col]["mean"] for r in rows])
+        lo = np.array([r[col]["ci95"][0] for r in rows])
+        hi = np.array([r[col]["ci95"][1] for r in rows])
+        ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours ({result['runs']} runs, 95 % CI)")
+        ax.errorbar(x, means, yerr=[means - lo, hi - means], fmt="none", color="k", capsize=3)
+        paper = [r[col]["paper"] for r in rows]
+        px = [i for i, p in enumerate(paper) if p is not None]
+        ax.plot(px, [paper[i] for i in px], "r_", ms=22, mew=3, label="[W] (single run)")
+        ax.set_xticks(x)
+        ax.set_xticklabels(labels, fontsize=8)
+        ax.set_ylabel(f"{what} (mm)")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{result['experiment']}: {result['title']}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------
+# the four tables of [W]
+
+_S31 = {d: hf.HFSetting(density=d, reader_side=0.06, trajectory="rectangle") for d in (16.0, 100.0)}
+_S32 = {d: hf.HFSetting(density=d, reader_side=0.06, trajectory="random") for d in (16.0, 100.0)}
+_S41 = tuple(hf.HFSetting(density=4.0, reader_side=0.3, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=r)
+             for r in FIVE_RECTANGLES)
+_S42 = hf.HFSetting(density=4.0, reader_side=0.3, trajectory="random", carpet=(4.0, 3.5))
+
+table_experiment(
+    "table-3.1", "FastSLAM vs PF-SLAM, 60 mm readers, rectangle driven three times ([W] Table 3.1)",
+    [
+        TableRow("16", "fastslam", [_S31[16.0]], (27.6, 24.0, 0.022, 36.6, 19.0, 28.9, 34.6)),
+        TableRow("16", "pf_slam", [_S31[16.0]], (20.8, 25.8, 0.015, 33.1, 26.7, 23.1, 35.3)),
+        TableRow("100", "fastslam", [_S31[100.0]], (44.4, 43.7, 0.031, 62.3, 44.7, 33.2, 55.7)),
+        TableRow("100", "pf_slam", [_S31[100.0]], (23.2, 23.9, 0.011, 33.3, 25.7, 24.1, 35.2)),
+    ],
+)
+table_experiment(
+    "table-3.2", "FastSLAM vs PF-SLAM, 60 mm readers, random trajectory ([W] Table 3.2)",
+    [
+        TableRow("16", "fastslam", [_S32[16.0]], (122.0, 72.6, 0.076, 142.0, 147.0, 71.3, 163.4)),
+        TableRow("16", "pf_slam", [_S32[16.0]], (10.8, 26.8, 0.006, 28.9, 9.3, 26.9, 28.5)),
+        TableRow("100", "fastslam", [_S32[100.0]], (47.5, 57.9, 0.019, 74.9, 52.0, 45.6, 69.2)),
+        TableRow("100", "pf_slam", [_S32[100.0]], (20.3, 37.1, 0.003, 42.3, 13.6, 23.4, 27.1)),
+    ],
+)
+table_experiment(
+    "table-4.1", "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², five rectangles ([W] Table 4.1)",
+    [
+        TableRow("4", "ps_slam", _S41, (25.4, 45.1, 0.006, 53.8, 50.3, 51.2, 79.0)),
+        TableRow("4", "pf_slam", _S41, (41.4, 66.6, 0.003, 82.1, 66.1, 80.1, 110.5)),
+        TableRow("4", "fastslam", _S41, (315.1, 204.5, 0.182, 420.8, 296.6, 210.1, 412.1)),
+    ],
+    notes="Each row pools the runs of the five rectangles.",
+)
+table_experiment(
+    "table-4.2", "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², random trajectory ([W] Table 4.2)",
+    [
+        # [W] prints the tag distance of Table 4.2 in "cm", but the values (50.4, 82.3, 280.0) follow
+        # the mm of every other column and table; we read them as mm.
+        TableRow("4", "ps_slam", [_S42], (21.0, 15.1, 0.010, 29.1, 31.9, 32.9, 50.4)),
+        TableRow("4", "pf_slam", [_S42], (61.0, 25.3, 0.007, 66.7, 67.5, 38.5, 82.3)),
+        TableRow("4", "fastslam", [_S42], (110.4, 198.6, 0.131, 245.7, 122.5, 234.1, 280.0)),
+    ],
+)

@@ -1,0 +1,85 @@
+"""Resumable batch Monte Carlo (jaxnav.experiments.sweep) and the 95 % intervals of the tables."""
+
+from __future__ import annotations
+
+import json
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import stats
+
+from jaxnav.experiments import sweep as sw
+
+
+class Out(NamedTuple):
+    a: jax.Array
+    b: jax.Array
+
+
+def _cells():
+    def noisy(key):
+        return Out(jax.random.normal(key), jnp.sum(jax.random.uniform(key, (3,))))
+
+    def shifted(key):
+        return Out(10.0 + jax.random.normal(key), jnp.zeros(()))
+
+    return [("noisy", noisy), ("shifted", shifted)]
+
+
+@pytest.mark.parametrize("dof", [1, 2, 5, 19, 99])
+def test_student_t_quantile_matches_scipy(dof):
+    assert sw.student_t_quantile(0.975, dof) == pytest.approx(stats.t.ppf(0.975, dof), rel=1e-7)
+
+
+def test_mean_ci_is_the_student_t_interval():
+    v = np.array([1.0, 2.0, 4.0, 7.0])
+    m, lo, hi = sw.mean_ci(v)
+    half = stats.t.ppf(0.975, 3) * v.std(ddof=1) / 2.0
+    assert m == pytest.approx(3.5) and lo == pytest.approx(3.5 - half) and hi == pytest.approx(3.5 + half)
+    assert sw.mean_ci([5.0]) == (5.0, 5.0, 5.0)
+
+
+def test_runs_do_not_depend_on_chunking_or_on_the_number_of_runs():
+    key = jax.random.PRNGKey(0)
+    full = sw.sweep(_cells(), 7, key, chunk_size=3, progress=False)
+    other = sw.sweep(_cells(), 7, key, chunk_size=7, progress=False)
+    prefix = sw.sweep(_cells(), 4, key, chunk_size=2, progress=False)
+    for cell in ("noisy", "shifted"):
+        np.testing.assert_array_equal(full[cell]["a"], other[cell]["a"])
+        np.testing.assert_array_equal(full[cell]["a"][:4], prefix[cell]["a"])
+    assert np.all(full["shifted"]["a"] > 5) and len(set(full["noisy"]["a"].tolist())) == 7
+
+
+def test_an_interrupted_sweep_resumes_to_the_same_result(tmp_path):
+    key = jax.random.PRNGKey(1)
+    path = str(tmp_path / "runs.json")
+    uninterrupted = sw.sweep(_cells(), 6, key, chunk_size=2, progress=False)
+
+    def stop_after_four_chunks(cell, done, calls=[]):
+        calls.append(cell)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sw.sweep(_cells(), 6, key, path, chunk_size=2, progress=False, on_chunk=stop_after_four_chunks)
+    saved = json.load(open(path))["cells"]
+    assert len(saved["noisy"]["a"]) == 6 and len(saved["shifted"]["a"]) == 2  # finished chunks are kept
+
+    seen = []
+    resumed = sw.sweep(_cells(), 6, key, path, chunk_size=2, progress=False, on_chunk=lambda c, d: seen.append((c, d)))
+    assert seen == [("shifted", 4), ("shifted", 6)]  # only the missing chunks ran
+    for cell in ("noisy", "shifted"):
+        for field in ("a", "b"):
+            np.testing.assert_array_equal(resumed[cell][field], uninterrupted[cell][field])
+
+
+def test_a_checkpoint_of_another_sweep_is_refused(tmp_path):
+    path = str(tmp_path / "runs.json")
+    sw.sweep(_cells(), 2, jax.random.PRNGKey(0), path, progress=False)
+    with pytest.raises(ValueError, match="other settings"):
+        sw.sweep(_cells(), 2, jax.random.PRNGKey(5), path, progress=False)
+    with pytest.raises(ValueError, match="unique"):
+        sw.sweep(_cells() + _cells()[:1], 2, jax.random.PRNGKey(0), progress=False)

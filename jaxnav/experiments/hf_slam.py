@@ -55,6 +55,7 @@ __all__ = [
     "MethodRun",
     "Errors",
     "make_world",
+    "reachable_tags",
     "run_method",
     "filter_world",
     "score",
@@ -208,6 +209,32 @@ def make_world(key: jax.Array, setting: HFSetting) -> World:
     return World(carpet, run)
 
 
+def reachable_tags(setting: HFSetting) -> np.ndarray:
+    """IDs of the tags a reader can reach from the setting's path (host, static), sorted.
+
+    For the rectangle (and the kidnapping, which stays on it) the truth follows the
+    rectangle exactly, so a tag can only be detected if its nominal position lies within
+    ``reach = max_b |offset_b| + side/√2 + jitter`` of the path. FastSLAM's per-particle map
+    only needs those tags: a real FastSLAM allocates landmarks as they are first seen, so
+    sizing its map to the tags the run can detect (instead of the whole carpet) is what its
+    memory and copy cost would be. A random trajectory can reach every tag.
+    """
+    layout = setting.layout
+    ids = np.arange(layout.num_tags)
+    if setting.trajectory == "random":
+        return ids
+    offsets = np.asarray(hf_rfid.default_reader_offsets(), np.float64)
+    reach = np.max(np.linalg.norm(offsets, axis=1)) + setting.reader_side / math.sqrt(2.0) + layout.max_jitter + 1e-6
+    pos = np.stack([layout.origin[0] + (ids % layout.nx) * layout.pitch, layout.origin[1] + (ids // layout.nx) * layout.pitch], 1)
+    x0, y0, w, h = setting.rectangle
+    corners = np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h], [x0, y0]])
+    dist = np.full(len(ids), np.inf)
+    for a, b in zip(corners[:-1], corners[1:]):
+        t = np.clip(((pos - a) @ (b - a)) / np.dot(b - a, b - a), 0.0, 1.0)
+        dist = np.minimum(dist, np.linalg.norm(pos - (a + t[:, None] * (b - a)), axis=1))
+    return ids[dist <= reach]
+
+
 def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) -> MethodRun:
     """Run ``method`` (one of :data:`METHODS`) on ``world``'s odometry and detections."""
     return filter_world(key, method, setting, world)[0]
@@ -222,15 +249,23 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
     num_tags = world.carpet.layout.num_tags
     start = run.start_pose
     if method == "fastslam":
+        # The map holds the tags this path can reach (reachable_tags), in ID order.
+        reach = reachable_tags(setting)
+        num_map = len(reach)
+        slot_of = np.full(num_tags + 1, num_map, np.int32)
+        slot_of[reach] = np.arange(num_map, dtype=np.int32)
         config = fastslam.FastSLAMConfig(
-            num_particles=setting.robot_particles, num_landmarks=num_tags, version=setting.fastslam_version,
+            num_particles=setting.robot_particles, num_landmarks=num_map, version=setting.fastslam_version,
             motion_model="omni", observation_model="hf_footprint",
         )
         params = fastslam.FastSLAMParams(setting.motion(), sensor)
         state = fastslam.init(k_init, config, params, start)
         obs = hf_rfid.landmark_observations(run.detections, sensor)
-        final, trace = fastslam.run(k_run, config, params, run.odometry, obs, state)
-        tags, seen = fastslam.map_estimate(final)
+        ids = jnp.asarray(slot_of)[jnp.where(obs.mask, jnp.clip(obs.ids, 0, num_tags), num_tags)]
+        final, trace = fastslam.run(k_run, config, params, run.odometry, obs._replace(ids=ids), state)
+        map_tags, map_seen = fastslam.map_estimate(final)
+        tags = jnp.zeros((num_tags, 2), map_tags.dtype).at[reach].set(map_tags)
+        seen = jnp.zeros((num_tags,), bool).at[reach].set(map_seen)
         return MethodRun(trace.estimate, tags, seen, jnp.zeros(run.odometry.shape[0], bool)), trace
     if method == "pf_slam":
         module = pf_slam

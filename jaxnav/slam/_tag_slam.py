@@ -268,8 +268,10 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, u
     tags = jax.tree_util.tree_map(lambda a, v: a.at[write_ids].set(v, mode="drop"), state.tags, new_rows)
 
     estimates = jnp.where(lost, rows.estimates, new_rows.estimates)
-    recovered = _recover(k_recover, poses, rows.estimates, offsets, known, config, sensor)
-    poses = jnp.where(lost, recovered, poses)
+    if config.recovery:  # a cond: a step that is not lost draws nothing (under vmap both branches run)
+        poses = jax.lax.cond(
+            lost, lambda p: _recover(k_recover, p, rows.estimates, offsets, known, config, sensor), lambda p: p, poses
+        )
     uniform = jnp.full_like(state.log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
     prior_lw = jnp.where(lost, uniform, state.log_weights)
     loglik = _robot_log_likelihood(poses, estimates, offsets, known, sensor)

@@ -223,7 +223,8 @@ def reachable_tags(setting: HFSetting) -> np.ndarray:
     ids = np.arange(layout.num_tags)
     if setting.trajectory == "random":
         return ids
-    offsets = np.asarray(hf_rfid.default_reader_offsets(), np.float64)
+    with jax.ensure_compile_time_eval():  # host numbers, also when called under jit/vmap
+        offsets = np.asarray(hf_rfid.default_reader_offsets(), np.float64)
     reach = np.max(np.linalg.norm(offsets, axis=1)) + setting.reader_side / math.sqrt(2.0) + layout.max_jitter + 1e-6
     pos = np.stack([layout.origin[0] + (ids % layout.nx) * layout.pitch, layout.origin[1] + (ids // layout.nx) * layout.pitch], 1)
     x0, y0, w, h = setting.rectangle

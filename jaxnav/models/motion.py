@@ -237,12 +237,18 @@ def odometry_control(previous_odometry_pose: jax.Array, odometry_pose: jax.Array
 # omnidirectional model, [W] eq. 3.6
 
 
+def _wrap_heading(pose: jax.Array) -> jax.Array:
+    """``pose`` with θ wrapped to ``[-π, π)``, built by concatenation: under ``vmap`` XLA:CPU turns
+    ``.at[..., 2].set`` into a scatter that copied the whole particle array (measured 28 ns/element)."""
+    return jnp.concatenate([pose[..., :2], wrap_angle(pose[..., 2:3])], axis=-1)
+
+
 def omni_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None = None) -> jax.Array:
     """[W] eq. 3.6 without noise: ``x_t = x_{t−1} + V·Δt`` with ``V = (v_x, v_y, ω)`` in the world frame."""
     del params
     dt = control[..., 3:4]
     new = pose + control[..., :3] * dt
-    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+    return _wrap_heading(new)
 
 
 def omni_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
@@ -250,7 +256,7 @@ def omni_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: Om
     dt = control[..., 3:4]
     eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
     new = poses + (control[..., :3] + eps) * dt
-    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+    return _wrap_heading(new)
 
 
 def _body_to_world(poses: jax.Array, v_body: jax.Array) -> jax.Array:
@@ -264,7 +270,7 @@ def omni_body_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None
     del params
     dt = control[..., 3:4]
     new = pose + _body_to_world(pose, control[..., :3]) * dt
-    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+    return _wrap_heading(new)
 
 
 def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
@@ -272,7 +278,7 @@ def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, param
     dt = control[..., 3:4]
     eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
     new = poses + _body_to_world(poses, control[..., :3] + eps) * dt
-    return new.at[..., 2].set(wrap_angle(new[..., 2]))
+    return _wrap_heading(new)
 
 
 # ---------------------------------------------------------------------------

@@ -5,8 +5,9 @@ updated (a particle filter, or a fixed-lag particle smoother); everything
 else — motion, gathering the detected tags, initialising new ones, weighting
 and resampling the robot — is this module. A tag estimator is a
 row type (a NamedTuple of one tag's arrays, with fields ``estimates`` and
-``counts``) and an ``update_tag`` function of one row; the tag table is the
-same row type with a leading ``max_tags`` axis, indexed by tag ID.
+``counts``) and a :class:`TagModel` (``propose`` the particles to weight,
+``finish`` the update); the tag table is the same row type with a leading
+``max_tags`` axis, indexed by tag ID.
 
 One step, for ``K`` detection slots (ids, readers, mask):
 
@@ -43,8 +44,8 @@ Choices where [W] is silent (stated here, tested):
   tags (for each particle a re-detected slot is picked at random, a point
   uniform over that reader's footprint, and the position that puts the
   reader over the tag estimate; heading uniform, since the robot may have
-  been turned, or with ``recovery_heading_sd`` the particle's own plus
-  ``N(0, recovery_heading_sd²)``), and no tag is updated in that step so a
+  been turned, or with ``recovery_heading_sd`` the particle's own plus a
+  uniform error of that standard deviation), and no tag is updated in that step so a
   lost robot does not corrupt the map. ``info.lost`` flags such steps.
 * In place: every field written back must be computed *from* its gathered
   row. A row field that does not depend on its gather (say, a constant) lets
@@ -207,29 +208,47 @@ def _robot_log_likelihood(poses, tag_estimates, offsets, mask, sensor) -> jax.Ar
 
 
 def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.Array:
-    """Robot particles redrawn around the re-detected tags (kidnapping recovery; module docstring)."""
-    k_pick, k_foot, k_head = jax.random.split(key, 3)
+    """Robot particles redrawn around the re-detected tags (kidnapping recovery; module docstring).
+
+    One block of uniforms serves every draw: the slot (the ``⌊u·n⌋``-th of the ``n`` re-detected
+    slots), the point in its footprint and the heading. Under ``vmap`` over runs the recovery is
+    computed at every step (a ``cond`` becomes a select), so it is kept to 4 uniforms per particle.
+    """
     n = poses.shape[0]
-    logits = jnp.where(known, 0.0, -jnp.inf)
-    pick = jax.random.categorical(k_pick, logits, shape=(n,))
-    u = jax.random.uniform(k_foot, (n, 2), poses.dtype, -1.0, 1.0) * sensor.half_width
+    u = jax.random.uniform(key, (n, 4), poses.dtype)
+    num_known = jnp.sum(known)
+    rank = jnp.minimum(jnp.floor(u[:, 0] * num_known), num_known - 1)  # which re-detected slot
+    pick = jnp.sum(jnp.cumsum(known)[None, :] <= rank[:, None], axis=1)  # its index among all slots
+    pick = jnp.clip(pick, 0, known.shape[0] - 1)
+    foot = (2.0 * u[:, 1:3] - 1.0) * sensor.half_width
     if config.recovery_heading_sd is None:
-        theta = jax.random.uniform(k_head, (n,), poses.dtype, -jnp.pi, jnp.pi)
+        theta = (2.0 * u[:, 3] - 1.0) * jnp.pi
     else:
-        theta = weights.wrap_angle(poses[:, 2] + config.recovery_heading_sd * jax.random.normal(k_head, (n,), poses.dtype))
-    body = offsets[pick] + u
+        spread = config.recovery_heading_sd * jnp.sqrt(3.0)  # uniform of that standard deviation
+        theta = weights.wrap_angle(poses[:, 2] + (2.0 * u[:, 3] - 1.0) * spread)
+    body = offsets[pick] + foot
     # tag = p + R(θ)·body  ⇒  p = tag − R(θ)·body
     offset_world = hf_rfid.world_frame(jnp.concatenate([jnp.zeros((n, 2), poses.dtype), theta[:, None]], axis=1), body)
     xy = tag_estimates[pick] - offset_world
     return jnp.concatenate([xy, theta[:, None]], axis=1)
 
 
-def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, update_tag: Callable[..., Any]):
-    """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
+class TagModel(NamedTuple):
+    """How one tag's estimator is updated, in two halves around the weighting.
 
-    ``update_tag(key, row, is_new, pose_est, init_offset, offsets [K, 2], mask [K], config, params) -> row``
-    updates one tag; ``mask`` selects the slots whose detections weight it.
+    Attributes:
+        propose: ``(key, row, is_new, pose_est, init_offset, config, params) -> (particles [J, 2], log_weights [J])``:
+            a new tag's particles over the initialising footprint, or the row's (PS-SLAM: jittered).
+        finish: ``(key, row, particles, log_weights, log_likelihood [J], is_new, config, params) -> row``:
+            weight, resample, estimate.
     """
+
+    propose: Callable[..., Any]
+    finish: Callable[..., Any]
+
+
+def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel):
+    """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``."""
     k_move, k_tags, k_recover, k_resample = jax.random.split(key, 4)
     model = get_motion_model(config.motion_model)
     sensor = params.sensor
@@ -255,14 +274,20 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, u
 
     slots = jnp.arange(num_slots)
 
-    def update_slot(k, row):
-        # A new tag was initialised by its group's first reader; the others weight it.
-        mask = same[k] & jnp.where(is_new[k], slots != first[k], True)
-        return update_tag(
-            jax.random.fold_in(k_tags, ids[k]), row, is_new[k], pose_est, offsets[first[k]], offsets, mask, config, params
-        )
-
-    new_rows = jax.vmap(update_slot)(slots, rows)
+    # Slots of one tag share its key, its row and its initialising reader, so they propose the
+    # same particles; each slot scores them against its own reader only (K·J evaluations) and a
+    # [K, K] matrix sums the scores of the group (a new tag's first reader, which placed the
+    # particles, is left out). This is the group's joint likelihood without a K·K·J evaluation.
+    tag_keys = jax.vmap(lambda i: jax.random.fold_in(k_tags, i))(ids)
+    particles, log_w = jax.vmap(
+        lambda k, row, new, off: tag_model.propose(k, row, new, pose_est, off, config, params)
+    )(tag_keys, rows, is_new, offsets[first])
+    own = jax.vmap(lambda p, off: hf_rfid.tag_log_likelihood(p, pose_est, off, sensor))(particles, offsets)
+    group = same & jnp.where(is_new[:, None], slots[None, :] != first[:, None], True)
+    loglik = jnp.matmul(group.astype(own.dtype), own, precision=jax.lax.Precision.HIGHEST)
+    new_rows = jax.vmap(
+        lambda k, row, p, lw, ll, new: tag_model.finish(k, row, p, lw, ll, new, config, params)
+    )(tag_keys, rows, particles, log_w, loglik, is_new)
     write = leader & ~lost
     write_ids = jnp.where(write, ids, max_tags)  # out of range: dropped by the scatter
     tags = jax.tree_util.tree_map(lambda a, v: a.at[write_ids].set(v, mode="drop"), state.tags, new_rows)
@@ -299,12 +324,6 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, u
         slot_counts=jnp.where(valid, counts_after, 0),
     )
     return state._replace(poses=res.particles, log_weights=res.log_weights, tags=tags), info
-
-
-def tag_detection_log_likelihood(particles, pose_est, offsets, mask, sensor) -> jax.Array:
-    """``[J]`` Σ over the masked slots of [W] eq. 3.7 for one tag's particles ``[J, 2]``."""
-    ll = jax.vmap(lambda off: hf_rfid.tag_log_likelihood(particles, pose_est, off, sensor))(offsets)
-    return jnp.sum(jnp.where(mask[:, None], ll, 0.0), axis=0)
 
 
 def resampled_log_weights(row, res: resampling.ResampleResult, config) -> jax.Array:

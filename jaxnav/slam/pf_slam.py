@@ -52,7 +52,7 @@ from jaxnav.core import resampling, weights
 from jaxnav.core.batch import scan_filter
 from jaxnav.models import hf_rfid
 from jaxnav.slam import _tag_slam
-from jaxnav.slam._tag_slam import SLAMInfo, check_capacity, tag_detection_log_likelihood
+from jaxnav.slam._tag_slam import SLAMInfo, check_capacity
 
 __all__ = [
     "PFSLAMConfig",
@@ -83,7 +83,7 @@ class PFSLAMConfig:
         recovery: redraw the robot particles when it is lost (kidnapping, [W] §3.4.3; see ``_tag_slam``).
         recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
         recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
-            been turned); a number: each keeps its own heading with this spread (rad).
+            been turned); a number: each keeps its own heading with a uniform error of this standard deviation (rad).
     """
 
     num_particles: int = 500
@@ -153,20 +153,27 @@ def _empty_table(config: PFSLAMConfig, dtype) -> TagTable:
     )
 
 
-def _update_tag(key, row: TagTable, is_new, pose_est, init_offset, offsets, mask, config, params) -> TagTable:
-    """[W] Alg. 1 lines 6–16 for one tag: initialise or weight, then resample."""
-    k_init, k_res = jax.random.split(key)
+def _propose(key, row: TagTable, is_new, pose_est, init_offset, config, params):
+    """[W] Alg. 1 lines 6–11: a new tag's particles uniform over the initialising footprint, or the row's."""
     j = config.num_tag_particles
-    fresh = hf_rfid.sample_in_footprint(k_init, pose_est, init_offset, params.sensor.half_width, j)
+    fresh = hf_rfid.sample_in_footprint(jax.random.fold_in(key, 0), pose_est, init_offset, params.sensor.half_width, j)
     particles = jnp.where(is_new, fresh, row.particles)
     log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
-    ll = tag_detection_log_likelihood(particles, pose_est, offsets, mask, params.sensor)
-    norm = weights.normalize(log_w + ll)
+    return particles, log_w
+
+
+def _finish(key, row: TagTable, particles, log_w, loglik, is_new, config, params) -> TagTable:
+    """[W] Alg. 1 lines 10–16: weight by eq. 3.7, resample, estimate."""
+    norm = weights.normalize(log_w + loglik)
     res = resampling.conditional_resample(
-        k_res, particles, norm.log_weights, threshold=config.tag_ess_threshold, scheme=config.resampling, normalized=True
+        jax.random.fold_in(key, 1), particles, norm.log_weights, threshold=config.tag_ess_threshold,
+        scheme=config.resampling, normalized=True,
     )
     estimate = weights.mean_from_probabilities(res.particles, jnp.exp(res.log_weights))
     return TagTable(res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, row.counts + 1)
+
+
+TAG_MODEL = _tag_slam.TagModel(_propose, _finish)
 
 
 def _table_shapes(config: PFSLAMConfig) -> dict[str, tuple[int, ...]]:
@@ -182,7 +189,7 @@ def init(key: jax.Array, config: PFSLAMConfig, params: PFSLAMParams, initial_pos
 
 
 def _step(key, state: PFSLAMState, config: PFSLAMConfig, params: PFSLAMParams, control, detections):
-    return _tag_slam.slam_step(key, state, config, params, control, detections, _update_tag)
+    return _tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))

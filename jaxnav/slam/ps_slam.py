@@ -49,7 +49,7 @@ from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_nonnegative, check_positive_int, check_shape
 from jaxnav.models import hf_rfid
 from jaxnav.slam import _tag_slam
-from jaxnav.slam._tag_slam import SLAMInfo, check_capacity, tag_detection_log_likelihood
+from jaxnav.slam._tag_slam import SLAMInfo, check_capacity
 
 __all__ = [
     "PSSLAMConfig",
@@ -148,26 +148,33 @@ def _empty_table(config: PSSLAMConfig, dtype) -> SmootherTable:
     )
 
 
-def _update_tag(key, row: SmootherTable, is_new, pose_est, init_offset, offsets, mask, config, params) -> SmootherTable:
-    """[W] Alg. 2 lines 6–24 for one tag: initialise or jitter, weight, push, resample (with histories), smooth."""
-    k_init, k_jitter, k_res = jax.random.split(key, 3)
-    j, lag = config.num_tag_particles, config.lag
-    fresh = hf_rfid.sample_in_footprint(k_init, pose_est, init_offset, params.sensor.half_width, j)
-    moved = row.particles + params.tag_jitter_sd * jax.random.normal(k_jitter, row.particles.shape, row.particles.dtype)
-    particles = jnp.where(is_new, fresh, moved)
+def _propose(key, row: SmootherTable, is_new, pose_est, init_offset, config, params):
+    """[W] Alg. 2 lines 6–11: a new tag's particles over the initialising footprint, or the row's moved by the jitter."""
+    j = config.num_tag_particles
+    fresh = hf_rfid.sample_in_footprint(jax.random.fold_in(key, 0), pose_est, init_offset, params.sensor.half_width, j)
+    noise = jax.random.normal(jax.random.fold_in(key, 2), row.particles.shape, row.particles.dtype)
+    particles = jnp.where(is_new, fresh, row.particles + params.tag_jitter_sd * noise)
     log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
-    ll = tag_detection_log_likelihood(particles, pose_est, offsets, mask, params.sensor)
-    norm = weights.normalize(log_w + ll)
+    return particles, log_w
+
+
+def _finish(key, row: SmootherTable, particles, log_w, loglik, is_new, config, params) -> SmootherTable:
+    """[W] Alg. 2 lines 12–24: weight, push onto the ring, resample (with histories), smooth."""
+    lag = config.lag
+    norm = weights.normalize(log_w + loglik)
     count = jnp.where(is_new, 0, row.counts)
-    buf = ring.RingBuffer(row.history, count % lag, jnp.minimum(count, lag))
-    buf = ring.ring_push(buf, particles)
+    buf = ring.ring_push(ring.RingBuffer(row.history, count % lag, jnp.minimum(count, lag)), particles)
     res = resampling.conditional_resample(
-        k_res, particles, norm.log_weights, threshold=config.tag_ess_threshold, scheme=config.resampling, normalized=True
+        jax.random.fold_in(key, 1), particles, norm.log_weights, threshold=config.tag_ess_threshold,
+        scheme=config.resampling, normalized=True,
     )
     buf = buf._replace(data=jnp.take(buf.data, res.ancestors, axis=1))  # histories move with their particles
     smoothed = ring.ring_mean(buf)  # [J, 2]
     estimate = weights.mean_from_probabilities(smoothed, jnp.exp(res.log_weights))
     return SmootherTable(res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data)
+
+
+TAG_MODEL = _tag_slam.TagModel(_propose, _finish)
 
 
 def _table_shapes(config: PSSLAMConfig) -> dict[str, tuple[int, ...]]:
@@ -195,7 +202,7 @@ def init(key: jax.Array, config: PSSLAMConfig, params: PSSLAMParams, initial_pos
 
 
 def _step(key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections):
-    return _tag_slam.slam_step(key, state, config, params, control, detections, _update_tag)
+    return _tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))

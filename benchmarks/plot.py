@@ -9,7 +9,7 @@ import os
 from collections import defaultdict
 from typing import Sequence
 
-__all__ = ["plot_workload", "plot_all"]
+__all__ = ["plot_workload", "plot_all", "plot_s1", "plot_s2", "plot_w5"]
 
 _STYLE = {
     # implementation -> (colour, marker)
@@ -68,6 +68,156 @@ def plot_workload(name: str, title: str, rows: Sequence[dict], x_key: str, path:
     return path
 
 
+# ---------------------------------------------------------------------------
+# HF-RFID SLAM seed curves (S1, S2) and the Monte Carlo workload (W5), drawn like [W]'s figures
+
+_METHOD_STYLE = {
+    # method -> (colour, marker)
+    "pf_slam": ("tab:blue", "o"),
+    "ps_slam": ("tab:green", "s"),
+    "fastslam": ("tab:red", "^"),
+}
+_MODE_LINE = {"per_call": ":", "in_scan": "-"}
+
+
+def _timed(rows: Sequence[dict], name: str) -> list[dict]:
+    return [r for r in rows if r["workload"] == name and r.get("median_s") is not None]
+
+
+def _method_lines(ax, rows: Sequence[dict], x_key: str, label_extra=None) -> None:
+    """One line per (method, mode): milliseconds per update against ``size[x_key]``."""
+    series: dict[tuple, list[tuple[float, float]]] = defaultdict(list)
+    for r in rows:
+        series[(r.get("method", "?"), r["mode"])].append((float(r["size"][x_key]), 1e3 * r["median_s"]))
+    order = list(_METHOD_STYLE)
+    for key in sorted(series, key=lambda k: (order.index(k[0]) if k[0] in order else 99, k[1])):
+        pts = sorted(series[key])
+        colour, marker = _METHOD_STYLE.get(key[0], (None, "x"))
+        label = f"{key[0]} ({key[1]})" + (label_extra(key, pts) if label_extra else "")
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
+                linestyle=_MODE_LINE.get(key[1], "--"), linewidth=1.6, markersize=5, label=label)
+
+
+def _title(title: str, subtitle: str) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(title, 95)) + (f"\n{subtitle}" if subtitle else "")
+
+
+def _plain_log_ticks(ax, axes: str = "y") -> None:
+    """Log axes labelled 0.5, 1, 2 … instead of 5×10⁻¹, 10⁰, 2×10⁰."""
+    from matplotlib.ticker import FuncFormatter
+
+    fmt = FuncFormatter(lambda v, _: f"{v:g}")
+    for a in axes:
+        axis = ax.yaxis if a == "y" else ax.xaxis
+        axis.set_major_formatter(fmt)
+        axis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}" if f"{v:.0e}"[0] in "25" else ""))
+
+
+def _save(fig, path: str) -> str:
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def plot_s1(rows: Sequence[dict], path: str, title: str = "S1", subtitle: str = "") -> str | None:
+    """[W] Figs. 3.6 / 4.1a: time per update against robot particles, one panel per setting, one line per method and mode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _timed(rows, "S1")
+    if not rows:
+        return None
+    settings = sorted({r.get("setting", "?") for r in rows})
+    fig, axes = plt.subplots(1, len(settings), figsize=(6.4 * len(settings), 5.0), dpi=110, squeeze=False)
+    for ax, name in zip(axes[0], settings):
+        sel = [r for r in rows if r.get("setting", "?") == name]
+        _method_lines(ax, sel, "robot_particles")
+        r0 = sel[0]
+        desc = ""
+        if "density_tags_per_m2" in r0:
+            desc = (f": {r0['density_tags_per_m2']:g} tags/m², {1000 * r0['reader_side_m']:g} mm readers, "
+                    f"{r0['size']['tags']} tags")
+        ax.set_title(f"{name}{desc}", fontsize=10)
+        ax.set_yscale("log")
+        _plain_log_ticks(ax, "y")
+        ax.set_xlabel("robot particles I")
+        ax.set_ylabel("time per update (ms)")
+        ax.grid(True, which="major", alpha=0.4)
+        ax.grid(True, which="minor", alpha=0.12)
+        ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(_title(title, subtitle), fontsize=10)
+    return _save(fig, path)
+
+
+def plot_s2(rows: Sequence[dict], path: str, title: str = "S2", subtitle: str = "") -> str | None:
+    """[W] Figs. 3.8 / 4.1b: time per update against tags in the map (log x), with t(largest)/t(smallest) in the legend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _timed(rows, "S2")
+    if not rows:
+        return None
+
+    def ratio(key, pts):
+        if len(pts) < 2:
+            return ""
+        return f"  t({pts[-1][0]:,.0f}) / t({pts[0][0]:,.0f}) = {pts[-1][1] / pts[0][1]:.2f}"
+
+    fig, ax = plt.subplots(figsize=(7.8, 5.4), dpi=110)
+    _method_lines(ax, rows, "tags", label_extra=ratio)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    _plain_log_ticks(ax, "y")
+    ax.set_xlabel("tags in the map")
+    ax.set_ylabel("time per update (ms)")
+    ax.set_title(_title(title, subtitle), fontsize=10)
+    ax.grid(True, which="major", alpha=0.4)
+    ax.grid(True, which="minor", alpha=0.12)
+    ax.legend(fontsize=8, loc="upper left")
+    return _save(fig, path)
+
+
+def plot_w5(rows: Sequence[dict], path: str, title: str = "W5", subtitle: str = "") -> str | None:
+    """W5: seconds per run against the number of runs R in the call, and the compile time at each R."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = sorted(_timed(rows, "W5"), key=lambda r: r["size"]["runs"])
+    if not rows:
+        return None
+    x = [r["size"]["runs"] for r in rows]
+    fig, ax = plt.subplots(figsize=(7.2, 5.0), dpi=110)
+    ax.plot(x, [r["median_s"] for r in rows], "o-", color="tab:blue", label="seconds per run (call / R)")
+    comp = [(r["size"]["runs"], r["compile_s"]) for r in rows if r.get("compile_s") is not None]
+    if comp:
+        ax.plot([c[0] for c in comp], [c[1] for c in comp], "s--", color="tab:gray", label="compile (s, once per R)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    _plain_log_ticks(ax, "xy")
+    ax.set_xlabel("runs R in one vmapped call")
+    ax.set_ylabel("seconds")
+    ax.set_title(_title(title, subtitle), fontsize=10)
+    ax.grid(True, which="major", alpha=0.4)
+    ax.grid(True, which="minor", alpha=0.12)
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+_CUSTOM = {"S1": plot_s1, "S2": plot_s2, "W5": plot_w5}
+
+
 def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:
     """One PNG per workload in ``payload['rows']``, named ``<json stem>_<workload>.png``."""
     stem = os.path.splitext(os.path.abspath(json_path))[0]
@@ -79,6 +229,11 @@ def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:
         wl = workloads.get(name)
         title = wl.title if wl else name
         x_key = wl.x_key if wl else next(iter(payload["rows"][0]["size"]))
+        if name in _CUSTOM:
+            p = _CUSTOM[name](payload["rows"], f"{stem}_{name}.png", title=title, subtitle=subtitle)
+            if p:
+                out.append(p)
+            continue
         p = plot_workload(name, title, payload["rows"], x_key, f"{stem}_{name}.png",
                           series_key=getattr(wl, "series_key", None), subtitle=subtitle)
         if p:

@@ -16,10 +16,12 @@ One step, for ``K`` detection slots (ids, readers, mask):
 2. The ``K`` detected rows are *gathered* from the table (``O(K·J)``).
 3. Each slot is updated by the tag model, ``vmap``-ed over slots. Slots that
    detected the same tag in this step (two readers, one tag) are grouped:
-   every slot of a group computes the same update from all of the group's
-   detections (same key: ``fold_in(key, tag ID)``), and only the group's
-   first slot writes it back, so a tag is updated exactly once per step with
-   every reader's evidence. A new tag is initialised uniformly over the
+   every slot of a group proposes the same particles (same row, same key
+   ``fold_in(key, tag ID)``), scores them against its own reader only, and a
+   ``[K, K]`` group matrix sums the scores of the group (``K·J`` likelihoods,
+   not ``K·K·J``); every slot of the group then finishes the same update and
+   only the group's first slot writes it back, so a tag is updated exactly
+   once per step with every reader's evidence. A new tag is initialised uniformly over the
    footprint of its first detecting reader (world frame, from ``x̂``); the
    group's other readers then weight it.
 4. The rows are *scattered* back (out-of-table writes dropped), in place in
@@ -45,8 +47,8 @@ Choices where [W] is silent (stated here, tested):
   uniform over that reader's footprint, and the position that puts the
   reader over the tag estimate; heading uniform, since the robot may have
   been turned, or with ``recovery_heading_sd`` the particle's own plus a
-  uniform error of that standard deviation), and no tag is updated in that step so a
-  lost robot does not corrupt the map. ``info.lost`` flags such steps.
+  uniform error of that standard deviation), and no tag is updated in that
+  step so a lost robot does not corrupt the map. ``info.lost`` flags such steps.
 * In place: every field written back must be computed *from* its gathered
   row. A row field that does not depend on its gather (say, a constant) lets
   XLA schedule the scatter before the read and copy the whole table to keep

@@ -13,6 +13,16 @@ _HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 _HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 
 
+def _write_plot(draw, path: str) -> None:
+    """Call ``draw(path)`` and say where the PNG went, or that matplotlib is missing."""
+    try:
+        draw(path)
+    except ImportError:
+        print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
+    else:
+        print(f"wrote {path}")
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from jaxnav.demo import plot_demo, run_demo
 
@@ -33,12 +43,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         print(f"{last + 1:>6} {(last + 1) * result.dt:>9.2f} {result.position_error[last]:>19.3f}")
     print(f"mean position error over the run: {result.position_error.mean():.3f} m")
     if args.out:
-        try:
-            path = plot_demo(result, args.out)
-        except ImportError:
-            print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
-        else:
-            print(f"wrote {path}")
+        _write_plot(lambda path: plot_demo(result, path), args.out)
     return 0
 
 
@@ -78,13 +83,7 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
         print(f"robot {robot}: {seq.controls.shape[0]} steps of {seq.dt:g} s, {seq.num_placed} measurements "
               f"({seq.num_outliers} of other robots or unknown barcodes, ignored by the filters)")
         if args.out:
-            path = f"{args.out}-robot{robot}.png"
-            try:
-                xp.plot_robot(seq, results, path)
-            except ImportError:
-                print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
-            else:
-                print(f"wrote {path}")
+            _write_plot(lambda path: xp.plot_robot(seq, results, path), f"{args.out}-robot{robot}.png")
     print(xp.format_table(rows))
     return 0
 
@@ -124,13 +123,7 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
               f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}")
     print(xp.format_errors([(args.method, errors)]))
     if args.out:
-        path = f"{args.out}.png"
-        try:
-            xp.plot_run(setting, args.method, world, result, path)
-        except ImportError:
-            print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
-        else:
-            print(f"wrote {path}")
+        _write_plot(lambda path: xp.plot_run(setting, args.method, world, result, path), f"{args.out}.png")
     return 0
 
 

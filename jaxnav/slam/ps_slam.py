@@ -50,6 +50,7 @@ from jaxnav.core.validation import check_nonnegative, check_positive_int, check_
 from jaxnav.models import hf_rfid
 from jaxnav.slam import _tag_slam
 from jaxnav.slam._tag_slam import SLAMInfo, check_capacity
+from jaxnav.slam.pf_slam import PFSLAMConfig
 
 __all__ = [
     "PSSLAMConfig",
@@ -66,27 +67,17 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class PSSLAMConfig:
+class PSSLAMConfig(PFSLAMConfig):
     """Static configuration of PS-SLAM: the fields of :class:`~jaxnav.slam.pf_slam.PFSLAMConfig` plus ``lag``.
 
     Attributes:
         lag: ``L``, states kept per tag particle (20–30 in [W] §4.1); ``L = 1`` smooths nothing.
     """
 
-    num_particles: int = 500
-    num_tag_particles: int = 100
-    max_tags: int = 1024
     lag: int = 20
-    motion_model: str = "omni"
-    resampling: str = "systematic"
-    ess_threshold: float = 1.0
-    tag_ess_threshold: float = 1.0
-    recovery: bool = True
-    recovery_log_likelihood: float = -8.0
-    recovery_heading_sd: float | None = None
 
     def __post_init__(self) -> None:
-        _tag_slam.validate_common_config(self)
+        super().__post_init__()
         check_positive_int("lag", self.lag)
 
 

@@ -225,8 +225,9 @@ def reachable_tags(setting: HFSetting) -> np.ndarray:
         return ids
     with jax.ensure_compile_time_eval():  # host numbers, also when called under jit/vmap
         offsets = np.asarray(hf_rfid.default_reader_offsets(), np.float64)
+        nominal = tc.TagCarpet(layout, jnp.zeros((layout.num_tags, 2), jnp.float32))
+        pos = np.asarray(tc.tag_positions(nominal), np.float64)  # the lattice without installation jitter
     reach = np.max(np.linalg.norm(offsets, axis=1)) + setting.reader_side / math.sqrt(2.0) + layout.max_jitter + 1e-6
-    pos = np.stack([layout.origin[0] + (ids % layout.nx) * layout.pitch, layout.origin[1] + (ids // layout.nx) * layout.pitch], 1)
     x0, y0, w, h = setting.rectangle
     corners = np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h], [x0, y0]])
     dist = np.full(len(ids), np.inf)

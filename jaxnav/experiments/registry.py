@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import jax
@@ -96,7 +96,6 @@ class Experiment:
     markdown: Callable[[dict], str]
     plot: Callable[[dict, str], None]
     notes: str = ""
-    extra: dict = field(default_factory=dict)
 
 
 EXPERIMENTS: dict[str, Experiment] = {}

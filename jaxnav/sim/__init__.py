@@ -1,4 +1,5 @@
 """World and hardware simulators."""
 
+from jaxnav.sim import ir_receiver as ir_receiver
 from jaxnav.sim import landmark_world as landmark_world
 from jaxnav.sim import tag_carpet as tag_carpet

@@ -16,6 +16,7 @@ setting. Register a new one with :func:`register`.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from dataclasses import dataclass
@@ -65,8 +66,13 @@ class Cell:
         return self.fn if self.fn is not None else error_cell(self.method, self.setting)
 
 
+@functools.lru_cache(maxsize=256)
 def error_cell(method: str, setting: hf.HFSetting) -> Callable[[jax.Array], hf.Errors]:
-    """``key -> Errors`` of one seeded run of ``method`` on ``setting``."""
+    """``key -> Errors`` of one seeded run of ``method`` on ``setting``.
+
+    Cached: experiments sharing a (method, setting) cell get the same function, so
+    they share its compilation (:func:`jaxnav.experiments.sweep.batched`).
+    """
 
     def fn(key):
         return hf.run_once(key, method, setting)[0]
@@ -130,8 +136,13 @@ def run(
     quick: bool = False,
     chunk_size: int = 25,
     progress: bool = True,
+    compiler_options: dict | None = None,
 ) -> dict:
     """Run experiment ``name`` with ``runs`` seeded runs per cell; write ``NAME.json/.md/.png`` to ``out_dir``.
+
+    ``compiler_options`` are XLA options for the cells' compilation; by default the quick
+    variant uses :data:`jaxnav.experiments.sweep.FAST_COMPILE` (its runs are short, its
+    compilations are not) and the full one XLA's defaults.
 
     The per-run results are checkpointed in ``out_dir/NAME.runs.json`` after every
     chunk: calling :func:`run` again with the same arguments resumes an interrupted
@@ -143,6 +154,7 @@ def run(
     raw = sw.sweep(
         [(c.id, c.run_fn()) for c in cells], runs, key, checkpoint, chunk_size, progress,
         meta={"experiment": name, "quick": quick},
+        compiler_options=(sw.FAST_COMPILE if quick else None) if compiler_options is None else compiler_options,
     )
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}

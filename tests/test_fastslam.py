@@ -249,3 +249,28 @@ def test_in_place_map_copy_equals_gather(getkey, monkeypatch):
     for a, b in zip(in_place, gathered):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert ancestors_moved
+
+
+def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey):
+    """``map_copy="gather"`` (for vmapped batch runs) and ``"in_place"`` copy the same maps, also on
+    small maps where "auto" would gather; in place with unsorted ancestors is refused."""
+    m = 40
+    rng = np.random.default_rng(1)
+    means = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
+    ids = jnp.asarray([1, 7, 33], jnp.int32)
+    obs = lm.RangeBearingObs(ids, jax.vmap(lambda mu: lm.predict(X0, mu))(means[ids]), jnp.ones(3, bool))
+    key, k0, control = getkey(), getkey(), jnp.asarray([0.3, 0.1, 0.25])
+    out = {}
+    for mode in ("gather", "in_place"):
+        cfg = fs.FastSLAMConfig(num_particles=16, num_landmarks=m, map_copy=mode)
+        state = fs.init(k0, cfg, PARAMS, X0, jnp.asarray([0.05, 0.05, 0.02]), landmark_means=means)
+        state = state._replace(means=state.means + jnp.asarray(rng.normal(0, 0.05, state.means.shape), jnp.float32))
+        out[mode] = jax.jit(fs._step, static_argnames="config")(key, state, cfg, PARAMS, control, obs)[0]
+        rng = np.random.default_rng(1)  # the same perturbation for both modes
+        rng.uniform(0, 10, (m, 2))
+    for a, b in zip(out["gather"], out["in_place"]):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="sorted ancestors"):
+        fs.FastSLAMConfig(map_copy="in_place", resampling="multinomial")
+    with pytest.raises(ValueError, match="map_copy"):
+        fs.FastSLAMConfig(map_copy="copy")

@@ -19,6 +19,7 @@ the tests check:
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import replace
 from typing import NamedTuple, Sequence
 
@@ -97,7 +98,8 @@ def plot_curves(result: dict, path: str) -> None:
         if result.get("x_log"):
             ax.set_xscale("log")
         ax.legend(fontsize=8)
-    fig.suptitle(f"{result['experiment']}: {result['title']} ({result['runs']} runs, 95 % CI)", fontsize=10)
+    title = f"{result['experiment']}: {result['title']} ({result['runs']} runs, 95 % CI)"
+    fig.suptitle(textwrap.fill(title, 60 * len(quantities)), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

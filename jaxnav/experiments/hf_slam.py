@@ -259,6 +259,7 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
         config = fastslam.FastSLAMConfig(
             num_particles=setting.robot_particles, num_landmarks=num_map, version=setting.fastslam_version,
             motion_model="omni", observation_model="hf_footprint",
+            map_copy="gather",  # run_once is vmapped over runs: see FastSLAMConfig.map_copy
         )
         params = fastslam.FastSLAMParams(setting.motion(), sensor)
         state = fastslam.init(k_init, config, params, start)

@@ -161,6 +161,12 @@ class FastSLAMConfig:
         observation_model: a name in ``OBSERVATION_MODELS`` or an :class:`ObservationModel`.
         resampling: scheme name in :data:`jaxnav.core.resampling.SCHEMES`.
         ess_threshold: resample when ESS < ``ess_threshold · N``; 1.0 (default) every step.
+        map_copy: how resampling copies the maps: "gather" (``jnp.take``), "in_place" (the
+            row-copy loop of :func:`~jaxnav.core.resampling.copy_ancestors_in_place`, sorted
+            schemes only) or "auto" (in place for rows of at least :data:`IN_PLACE_MIN_FLOATS`
+            with a sorted scheme). Use "gather" when the filter runs under ``vmap`` (batch Monte
+            Carlo): the loop's trip count then differs between runs, and a batched ``while`` selects
+            the whole maps on every iteration.
     """
 
     num_particles: int = 100
@@ -170,6 +176,7 @@ class FastSLAMConfig:
     observation_model: str | ObservationModel = "range_bearing"
     resampling: str = "systematic"
     ess_threshold: float = 1.0
+    map_copy: str = "auto"
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
@@ -180,6 +187,12 @@ class FastSLAMConfig:
             check_choice("observation_model", self.observation_model, OBSERVATION_MODELS)
         check_choice("resampling", self.resampling, resampling.SCHEMES)
         check_fraction("ess_threshold", self.ess_threshold)
+        check_choice("map_copy", self.map_copy, ("auto", "gather", "in_place"))
+        if self.map_copy == "in_place" and self.resampling not in resampling.SORTED_SCHEMES:
+            raise ValueError(
+                f"map_copy='in_place' needs sorted ancestors ({', '.join(resampling.SORTED_SCHEMES)}), "
+                f"not resampling={self.resampling!r}"
+            )
 
     @property
     def obs_model(self) -> ObservationModel:
@@ -464,21 +477,22 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
         scheme=config.resampling,
         normalized=True,
     )
-    means, covs = _copy_maps(means, covs, res.ancestors, config.resampling)
+    means, covs = _copy_maps(means, covs, res.ancestors, config.resampling, config.map_copy)
     poses = res.particles
     info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
 
 
-def _copy_maps(means, covs, ancestors, scheme: str):
+def _copy_maps(means, covs, ancestors, scheme: str, mode: str = "auto"):
     """Every particle takes its ancestor's map: the O(N·M) copy of [A] Alg. 5's resampling.
 
     Large maps with sorted ancestors are copied in place
-    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`); ``ancestors = arange`` (no
-    resampling) copies nothing.
+    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`) unless ``mode`` is "gather";
+    ``ancestors = arange`` (no resampling) copies nothing in place.
     """
     row = int(np.prod(means.shape[1:])) + int(np.prod(covs.shape[1:]))
-    if scheme in resampling.SORTED_SCHEMES and row >= IN_PLACE_MIN_FLOATS:
+    large = scheme in resampling.SORTED_SCHEMES and row >= IN_PLACE_MIN_FLOATS
+    if mode == "in_place" or (mode == "auto" and large):
         return resampling.copy_ancestors_in_place((means, covs), ancestors)
     return jnp.take(means, ancestors, axis=0), jnp.take(covs, ancestors, axis=0)
 

@@ -225,7 +225,7 @@ def _fig44_summary(raw, cells, quick):
 
 
 curve_experiment(
-    "fig-4.4", "Errors against the reader footprint, 4 tags/m², rectangles ([W] Fig. 4.4)", "reader side (mm)",
+    "fig-4.4", "Errors against the reader footprint, 4 tags/m², one rectangle ([W] Fig. 4.4)", "reader side (mm)",
     _fig44_cells, _fig44_summary,
     notes="[W]: PS ≈ PF below ~180 mm, PS better above; FastSLAM worst throughout. Rectangle: the first of Table 4.1's five.",
 )

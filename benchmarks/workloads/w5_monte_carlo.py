@@ -21,9 +21,9 @@ of ``repeats`` calls (default 3 for R ≤ 10 after one warm-up call; for
 R ≥ 100 a single call and no warm-up call, the compile being the warm-up).
 ``call_s`` is the wall time of the call itself.
 
-``monte_carlo`` itself is not timed: it builds a new ``jax.jit(jax.vmap(fn))``
-on every call, so each call compiles again (measured ≈ 22 s for R = 1 on this
-setting, more than the run); its chunking is only needed if all R runs do not
+``monte_carlo`` itself is not timed: it compiles the same vmapped function
+(:func:`jaxnav.core.batch.compiled_vmap`, cached per function object, ≈ 22 s for
+R = 1 on this setting, more than the run) that ``compile_s`` measures; its chunking is only needed if all R runs do not
 fit in memory at once, and the peak memory of the largest call (from XLA's
 memory analysis of the compiled executable: arguments + outputs + temporaries)
 is recorded as ``memory_bytes`` so that the choice can be checked. Every row also records the mean robot error

@@ -12,13 +12,33 @@ hold every chunk's output on the device.
 
 from __future__ import annotations
 
+import weakref
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["monte_carlo", "run_keys", "scan_filter"]
+__all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
+
+_COMPILED: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
+
+
+def compiled_vmap(fn: Callable[..., Any], *args: Any, compiler_options: dict | None = None):
+    """``jax.jit(jax.vmap(fn))`` compiled for the shapes of ``args``, cached on the ``fn`` object.
+
+    Calls with the same ``fn`` object, argument shapes and ``compiler_options`` (XLA
+    options, e.g. ``{"xla_backend_optimization_level": 0}``) reuse one executable, so
+    repeated sweeps of one function compile once per process. Returns the executable;
+    call it with ``args``.
+    """
+    options = dict(compiler_options or {})
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    signature = (tree, tuple((np.shape(x), str(x.dtype)) for x in leaves), tuple(sorted(options.items())))
+    per_fn = _COMPILED.setdefault(fn, {})
+    if signature not in per_fn:
+        per_fn[signature] = jax.jit(jax.vmap(fn)).lower(*args).compile(compiler_options=options or None)
+    return per_fn[signature]
 
 
 def run_keys(key: jax.Array, num_runs: int) -> jax.Array:
@@ -50,7 +70,8 @@ def monte_carlo(
             simulated data per run); sliced per chunk.
         chunk_size: runs per vmapped call (default: all at once). Bounds memory.
         progress: optional ``callback(done, total)`` called after every chunk.
-        jit: jit the vmapped function (one compilation for all chunks).
+        jit: jit the vmapped function (one compilation for all chunks, cached
+            across calls with the same ``fn`` object: :func:`compiled_vmap`).
 
     Returns:
         The pytree of ``fn``'s outputs with a leading axis of size ``num_runs``,
@@ -71,9 +92,7 @@ def monte_carlo(
                     f"got a leaf of shape {np.shape(leaf)}"
                 )
     keys = run_keys(key, num_runs)
-    batched = jax.vmap(fn)
-    if jit:
-        batched = jax.jit(batched)
+    batched = (lambda *a: compiled_vmap(fn, *a)(*a)) if jit else jax.vmap(fn)
 
     outputs = []
     for start in range(0, num_runs, chunk):

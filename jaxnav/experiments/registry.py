@@ -71,7 +71,7 @@ def error_cell(method: str, setting: hf.HFSetting) -> Callable[[jax.Array], hf.E
     """``key -> Errors`` of one seeded run of ``method`` on ``setting``.
 
     Cached: experiments sharing a (method, setting) cell get the same function, so
-    they share its compilation (:func:`jaxnav.experiments.sweep.batched`).
+    they share its compilation (:func:`jaxnav.core.batch.compiled_vmap`).
     """
 
     def fn(key):

@@ -25,35 +25,20 @@ import json
 import math
 import os
 import sys
-import weakref
 import zlib
 from typing import Any, Callable, Sequence
 
 import jax
 import numpy as np
 
-__all__ = ["cell_key", "run_key", "sweep", "batched", "mean_ci", "student_t_quantile", "Progress", "FAST_COMPILE"]
+from jaxnav.core.batch import compiled_vmap
+
+__all__ = ["cell_key", "run_key", "sweep", "mean_ci", "student_t_quantile", "Progress", "FAST_COMPILE"]
 
 FAST_COMPILE = {"xla_backend_optimization_level": 0}
 """XLA options that trade run time for compile time (about 3× faster to compile and
 5× slower to run a PF-SLAM cell on this CPU): right for the quick variants, whose
 runs take a fraction of their compilation."""
-
-_COMPILED: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
-
-
-def batched(fn: Callable[[jax.Array], Any], keys: jax.Array, compiler_options: dict | None = None):
-    """``vmap(fn)`` jitted and compiled for ``keys``' shape, cached on ``fn``.
-
-    The cache lets cells of different experiments that share one ``fn`` object (e.g. the same
-    method on the same setting) share one compilation within a process.
-    """
-    options = dict(compiler_options or {})
-    signature = (keys.shape, str(keys.dtype), tuple(sorted(options.items())))
-    per_fn = _COMPILED.setdefault(fn, {})
-    if signature not in per_fn:
-        per_fn[signature] = jax.jit(jax.vmap(fn)).lower(keys).compile(compiler_options=options or None)
-    return per_fn[signature]
 
 
 def cell_key(key: jax.Array, cell_id: str) -> jax.Array:
@@ -135,7 +120,7 @@ def sweep(
     Args:
         cells: ``(cell_id, fn)`` pairs; ``fn(run_key)`` is pure and returns a flat
             NamedTuple (or dict) of scalars or arrays per run. Cells passing the same
-            ``fn`` object share one compilation (:func:`batched`).
+            ``fn`` object share one compilation (:func:`jaxnav.core.batch.compiled_vmap`).
         runs: R, runs per cell.
         key: master key.
         path: JSON checkpoint (``None``: keep nothing on disk).
@@ -172,7 +157,7 @@ def sweep(
                 stop = min(start + chunk, runs)
                 idx = np.arange(start, start + chunk)  # padded to a full chunk: one compilation
                 keys = jax.vmap(lambda r: jax.random.fold_in(base, r))(idx)
-                result = batched(fn, keys, compiler_options)(keys)
+                result = compiled_vmap(fn, keys, compiler_options=compiler_options)(keys)
                 fields = result._asdict() if hasattr(result, "_asdict") else dict(result)
                 for name, value in fields.items():
                     stored.setdefault(name, []).extend(np.asarray(value)[: stop - start].tolist())

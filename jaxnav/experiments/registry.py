@@ -51,16 +51,22 @@ class Cell:
     Attributes:
         id: unique id (it seeds the cell's runs: see :func:`jaxnav.experiments.sweep.run_key`).
         row: the result row the cell's runs are pooled into (Table 4.1 pools five rectangles).
-        method: one of :data:`jaxnav.experiments.hf_slam.METHODS`.
-        setting: the :class:`~jaxnav.experiments.hf_slam.HFSetting`.
-        fn: ``run_key -> per-run result`` (default: [W]'s errors of :func:`hf_slam.run_once`).
+        method: the method's name (:data:`jaxnav.experiments.hf_slam.METHODS` for the
+            HF-RFID cells).
+        setting: what the runs simulate (an :class:`~jaxnav.experiments.hf_slam.HFSetting`,
+            an :class:`~jaxnav.experiments.ir_positioning.IRSetting`).
+        fn: ``(run_key, *args) -> per-run result`` (default: [W]'s errors of
+            :func:`hf_slam.run_once` for an HF setting).
+        args: arrays given to every run of the cell after its key. Cells with
+            the same ``fn`` and ``args`` of the same shapes share one compilation.
     """
 
     id: str
     row: str
     method: str
-    setting: hf.HFSetting
-    fn: Callable[[jax.Array], Any] | None = None
+    setting: Any
+    fn: Callable[..., Any] | None = None
+    args: tuple = ()
 
     def run_fn(self) -> Callable[[jax.Array], Any]:
         return self.fn if self.fn is not None else error_cell(self.method, self.setting)
@@ -92,6 +98,9 @@ class Experiment:
         render: ``result -> str`` for the terminal.
         markdown: ``result -> str``.
         plot: ``(result, path) -> None`` writes a PNG.
+        notes: printed under the result.
+        batching: how a chunk of runs is evaluated, ``"vmap"`` or ``"map"``
+            (:func:`jaxnav.experiments.sweep.sweep`).
     """
 
     name: str
@@ -102,6 +111,7 @@ class Experiment:
     markdown: Callable[[dict], str]
     plot: Callable[[dict, str], None]
     notes: str = ""
+    batching: str = "vmap"
 
 
 EXPERIMENTS: dict[str, Experiment] = {}
@@ -152,9 +162,10 @@ def run(
     cells = exp.cells(quick)
     checkpoint = None if out_dir is None else os.path.join(out_dir, f"{name}.{'quick.' if quick else ''}runs.json")
     raw = sw.sweep(
-        [(c.id, c.run_fn()) for c in cells], runs, key, checkpoint, chunk_size, progress,
+        [(c.id, c.run_fn(), c.args) for c in cells], runs, key, checkpoint, chunk_size, progress,
         meta={"experiment": name, "quick": quick},
         compiler_options=(sw.FAST_COMPILE if quick else None) if compiler_options is None else compiler_options,
+        batching=exp.batching,
     )
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}

@@ -114,13 +114,17 @@ def sweep(
     meta: dict | None = None,
     on_chunk: Callable[[str, int], None] | None = None,
     compiler_options: dict | None = None,
+    batching: str = "vmap",
 ) -> dict[str, dict[str, np.ndarray]]:
     """Run ``runs`` seeded runs of every cell; resume from ``path`` if it holds finished chunks.
 
     Args:
-        cells: ``(cell_id, fn)`` pairs; ``fn(run_key)`` is pure and returns a flat
-            NamedTuple (or dict) of scalars or arrays per run. Cells passing the same
-            ``fn`` object share one compilation (:func:`jaxnav.core.batch.compiled_vmap`).
+        cells: ``(cell_id, fn)`` pairs or ``(cell_id, fn, shared)`` triples;
+            ``fn(run_key, *shared)`` is pure and returns a flat NamedTuple (or dict)
+            of scalars or arrays per run; ``shared`` is a tuple of pytrees of arrays
+            given whole to every run of the cell. Cells passing the same ``fn``
+            object and ``shared`` of the same shapes share one compilation
+            (:func:`jaxnav.core.batch.compiled_vmap`).
         runs: R, runs per cell.
         key: master key.
         path: JSON checkpoint (``None``: keep nothing on disk).
@@ -130,6 +134,9 @@ def sweep(
             cells' ids, R is not part of it: a longer sweep extends a shorter one).
         on_chunk: ``callback(cell_id, runs_done)`` after every saved chunk.
         compiler_options: XLA options for the cells' compilation (e.g. :data:`FAST_COMPILE`).
+        batching: how a chunk's runs are evaluated, ``"vmap"`` (vectorised) or ``"map"``
+            (one after the other in one compiled loop; see
+            :func:`jaxnav.core.batch.compiled_vmap`).
 
     Returns:
         ``{cell_id: {field: array [R, ...]}}`` (NumPy).
@@ -140,7 +147,12 @@ def sweep(
     chunk = int(chunk_size)
     if chunk < 1:
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
-    ids = [c for c, _ in cells]
+    if batching not in ("vmap", "map"):
+        raise ValueError(f"batching must be 'vmap' or 'map', got {batching!r}")
+    # never pad a sweep of fewer runs than a chunk up to a whole chunk (the padding is computed)
+    chunk = min(chunk, runs)
+    cells = [(c[0], c[1], tuple(c[2]) if len(c) > 2 else ()) for c in cells]
+    ids = [c for c, _, _ in cells]
     if len(set(ids)) != len(ids):
         raise ValueError(f"cell ids must be unique, got {ids}")
     header = {"cells": ids, "seed": np.asarray(jax.random.key_data(key)).tolist(), **(meta or {})}
@@ -148,7 +160,7 @@ def sweep(
     bar = Progress(runs * len(cells), "Monte Carlo", progress)
     out: dict[str, dict[str, np.ndarray]] = {}
     try:
-        for cell_id, fn in cells:
+        for cell_id, fn, shared in cells:
             stored = data["cells"].setdefault(cell_id, {})
             done = len(next(iter(stored.values()))) if stored else 0
             bar.update(min(done, runs))
@@ -157,7 +169,8 @@ def sweep(
                 stop = min(start + chunk, runs)
                 idx = np.arange(start, start + chunk)  # padded to a full chunk: one compilation
                 keys = jax.vmap(lambda r: jax.random.fold_in(base, r))(idx)
-                result = compiled_vmap(fn, keys, compiler_options=compiler_options)(keys)
+                exe = compiled_vmap(fn, keys, shared=shared, mode=batching, compiler_options=compiler_options)
+                result = exe(keys, *shared)
                 fields = result._asdict() if hasattr(result, "_asdict") else dict(result)
                 for name, value in fields.items():
                     stored.setdefault(name, []).extend(np.asarray(value)[: stop - start].tolist())

@@ -17,7 +17,9 @@ The data of the IR experiments of [W] §5.4 in simulation:
    ``omni_body`` model of :mod:`jaxnav.models.motion`, [W] eq. 3.6 with the
    velocity measured on the robot), corrupted by a scale error and white
    noise (:class:`OdometryError`):
-   ``u_odo = u_true · (1 + scale) + N(0, sd²)``. [W] gives no odometry
+   ``u_odo = u_true · (1 + scale) + N(0, sd²)`` while the robot moves,
+   and exactly zero while it stands still (the stays at the marked spots of
+   [W] §5.4.2: encoders that do not turn read nothing). [W] gives no odometry
    figures; the defaults were chosen so that dead reckoning from the known
    start pose drifts by about [W]'s "odometry only" error (108 mm mean over
    the 70 spots of Table 5.2) over one 60 s lap (measured in
@@ -45,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import check_finite, check_nonnegative, check_positive, check_positive_int, check_shape
+from jaxnav.core.validation import is_concrete, check_finite, check_nonnegative, check_positive, check_positive_int, check_shape
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import ir
 from jaxnav.models.motion import omni_body_mean
@@ -57,8 +59,12 @@ __all__ = [
     "IRRun",
     "EXPERIMENT_WAYPOINTS",
     "experiment_waypoints",
+    "ROTATION_WAYPOINTS",
     "layout_area",
     "polyline_path",
+    "spot_grid",
+    "SpotTour",
+    "spot_tour",
     "body_controls",
     "simulate",
     "dead_reckoning",
@@ -135,6 +141,35 @@ def experiment_waypoints(start: int = 0) -> np.ndarray:
     return np.roll(EXPERIMENT_WAYPOINTS, -int(start), axis=0).copy()
 
 
+ROTATION_WAYPOINTS = np.array(
+    [
+        [0.3, 0.8, 0.0],  # E
+        [1.2, 0.8, 0.0],
+        [1.2, 0.8, np.pi / 2],  # 1st turn
+        [1.2, 0.4, np.pi / 2],
+        [1.2, 0.4, np.pi],  # 2nd
+        [2.0, 0.4, np.pi],
+        [2.0, 0.4, -np.pi / 2],  # 3rd
+        [2.0, 1.2, -np.pi / 2],
+        [2.0, 1.2, np.pi / 4],  # 4th
+        [2.8, 1.2, np.pi / 4],
+        [2.8, 1.2, -3 * np.pi / 4],  # 5th
+        [2.8, 0.8, -3 * np.pi / 4],  # K
+    ],
+    np.float64,
+)
+"""Open path from E to K with five turns on the spot (m, m, rad), under :func:`jaxnav.models.ir.experiment_layout`.
+
+[W] §5.4.3 (Fig. 5.14) drives "from E point to K point" and changes the
+orientation "five times at the marked points", without coordinates. Ours
+(the robot is holonomic: it drives sideways or backwards as its heading
+requires): E = (0.3, 0.8) m at heading 0, east under the first unique
+array, then turns of +π/2, +π/2, +π/2 (to −π/2), +3π/4 (to π/4) and
+π (to −3π/4) at (1.2, 0.8), (1.2, 0.4), (2.0, 0.4), (2.0, 1.2) and
+(2.8, 1.2), ending at K = (2.8, 0.8): 4.1 m and 10.2 rad of turning, 41 s at
+0.2 m/s and 0.5 rad/s (:func:`polyline_path` with ``closed=False``)."""
+
+
 def layout_area(layout: ir.EmitterLayout, margin: float = 0.4) -> tuple[float, float, float, float]:
     """``(x_min, x_max, y_min, y_max)`` (m): the emitters' bounding box grown by ``margin``.
 
@@ -207,6 +242,131 @@ def polyline_path(
     return np.concatenate([xy, th[:, None]], axis=1).astype(np.float32)
 
 
+def spot_grid(nx: int = 14, ny: int = 5, x: tuple[float, float] = (0.3, 2.9),
+              y: tuple[float, float] = (0.4, 1.2)) -> np.ndarray:
+    """``[ny · nx, 2]`` marked spots (m) on a regular grid, row by row (y outer, x inner).
+
+    [W] §5.4.2 marks 70 spots (Fig. 5.12, no coordinates). Ours: the default
+    14 × 5 grid, 0.2 m apart, over x ∈ [0.3, 2.9] m and y ∈ [0.4, 1.2] m,
+    the band under :func:`jaxnav.models.ir.experiment_layout` the emitters
+    cover (rows of repeated emitters at y = 0.4 and 1.2 m, unique arrays at
+    0.8 m).
+    """
+    nx = check_positive_int("nx", nx)
+    ny = check_positive_int("ny", ny)
+    check_finite("x", np.asarray(x, np.float64))
+    check_finite("y", np.asarray(y, np.float64))
+    gx = np.linspace(float(x[0]), float(x[1]), nx)
+    gy = np.linspace(float(y[0]), float(y[1]), ny)
+    return np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+
+
+class SpotTour(NamedTuple):
+    """A drive that stops at marked spots (:func:`spot_tour`).
+
+    Attributes:
+        poses: ``[T + 1, 3]`` true poses (m, m, rad), ``poses[0]`` the start.
+        spot: ``[T + 1]`` int: the index of the spot the robot stands on at
+            each sample, −1 while it moves (or waits after the tour).
+        spots: ``[S, 2]`` the spots in visiting order (m).
+    """
+
+    poses: np.ndarray
+    spot: np.ndarray
+    spots: np.ndarray
+
+
+def spot_tour(
+    spots: Any,
+    speed: float = 0.2,
+    dt: float = 0.1,
+    dwell: float = 5.0,
+    heading: float = 0.0,
+    lead_in: Any = None,
+    serpentine: int | None = None,
+    num_steps: int | None = None,
+) -> SpotTour:
+    """A drive through ``spots`` at constant ``speed`` that stands ``dwell`` s on each ([W] §5.4.2).
+
+    "The robot stays 5 seconds at the marked spot when passing by to record
+    the estimated position and orientation data of the robot. The orientation
+    of the robot was maintained at 0 [rad]."
+
+    Args:
+        spots: ``[S, 2]`` spots (m), visited in order (see ``serpentine``).
+        speed: m/s between spots.
+        dt: sample period (s).
+        dwell: seconds on each spot (its samples are labelled with the spot).
+        heading: the constant heading (rad).
+        lead_in: optional ``[K, 2]`` waypoints driven first, without stops
+            (the robot starts at ``lead_in[0]``; e.g. a pass under the
+            unique emitters so that the filter has started before the first
+            spot). Without it the robot starts on the first spot.
+        serpentine: with ``nx``, treat ``spots`` as rows of ``nx`` (as
+            :func:`spot_grid` makes them) and drive every other row
+            backwards (a boustrophedon), so that no leg crosses the area.
+        num_steps: pad the drive to ``T`` steps by standing at the last spot
+            (label −1), so that tours of different lengths share shapes;
+            ``None``: the tour's own length.
+
+    Returns:
+        :class:`SpotTour` (host NumPy arrays).
+    """
+    sp = np.asarray(spots, np.float64)
+    check_shape("spots", sp, (None, 2))
+    if sp.shape[0] < 1:
+        raise ValueError("spots must hold at least one spot")
+    check_finite("spots", sp)
+    check_positive("speed", speed)
+    check_positive("dt", dt)
+    check_positive("dwell", dwell)
+    check_finite("heading", heading)
+    if serpentine is not None:
+        nx = check_positive_int("serpentine", serpentine)
+        if sp.shape[0] % nx:
+            raise ValueError(f"serpentine={nx} does not divide the {sp.shape[0]} spots into rows")
+        rows = sp.reshape(-1, nx, 2)
+        sp = np.concatenate([r[::-1] if i % 2 else r for i, r in enumerate(rows)], axis=0)
+    lead = np.zeros((0, 2)) if lead_in is None else np.asarray(lead_in, np.float64)
+    check_shape("lead_in", lead, (None, 2))
+    check_finite("lead_in", lead)
+    # knots: (position, time) pairs; the robot moves linearly between consecutive knots
+    points, times, labels = [], [], []  # labels[i]: the spot held on the segment from knot i to i + 1
+    t = 0.0
+    for p in lead:
+        if points:
+            t += float(np.linalg.norm(p - points[-1])) / float(speed)
+        points.append(p)
+        times.append(t)
+        labels.append(-1)
+    for i, p in enumerate(sp):
+        if points:
+            t += float(np.linalg.norm(p - points[-1])) / float(speed)
+        points.append(p)
+        times.append(t)
+        labels.append(i)  # stand
+        t += float(dwell)
+        points.append(p)
+        times.append(t)
+        labels.append(-1)  # then move on
+    points, times = np.asarray(points), np.asarray(times)
+    natural = int(np.floor(times[-1] / float(dt)))
+    if num_steps is None:
+        num_steps = natural
+    num_steps = check_positive_int("num_steps", num_steps)
+    if num_steps < natural:
+        raise ValueError(f"num_steps={num_steps} is shorter than the tour ({natural} steps)")
+    ts = np.arange(num_steps + 1) * float(dt)
+    seg = np.clip(np.searchsorted(times, ts, side="right") - 1, 0, len(times) - 1)
+    nxt = np.minimum(seg + 1, len(times) - 1)
+    span = times[nxt] - times[seg]
+    frac = np.where(span > 0, (ts - times[seg]) / np.where(span > 0, span, 1.0), 0.0)
+    xy = points[seg] + np.clip(frac, 0.0, 1.0)[:, None] * (points[nxt] - points[seg])
+    label = np.where(ts <= times[-1], np.asarray(labels)[seg], -1)
+    poses = np.concatenate([xy, np.full((len(ts), 1), float(heading))], axis=1).astype(np.float32)
+    return SpotTour(poses, label.astype(np.int32), sp.astype(np.float32))
+
+
 def body_controls(poses: jax.Array, dt: float | jax.Array) -> jax.Array:
     """``[T, 4]`` exact ``omni_body`` controls ``(v_x, v_y, ω, Δt)`` between consecutive ``poses [T+1, 3]``.
 
@@ -233,7 +393,8 @@ def _simulate(key, layout, poses, dt, receiver_params, odometry_error, config):
     def body(_, inputs):
         t, u, pose = inputs
         eps = jax.random.normal(jax.random.fold_in(k_odo, t), (3,), u.dtype)
-        v = u[:3] * (1.0 + odometry_error.scale) + odometry_error.sd * eps
+        moving = jnp.any(u[:3] != 0.0)  # a robot standing still reads zero: its encoders do not turn
+        v = u[:3] * (1.0 + odometry_error.scale) + jnp.where(moving, odometry_error.sd * eps, 0.0)
         det = ir_receiver.detect(jax.random.fold_in(k_det, t), pose, layout, receiver_params, config)
         return None, (jnp.concatenate([v, u[3:]]), det)
 
@@ -275,7 +436,10 @@ def simulate(
     if receiver_params is None:
         receiver_params = ir_receiver.default_params()
     ir_receiver.validate_params(receiver_params)
-    ir.validate_layout(layout)
+    if is_concrete(layout):  # inside a trace (a batch of runs over layouts) only the shapes can be checked
+        ir.validate_layout(layout)
+    else:
+        check_shape("layout.positions", layout.positions, (None, 2))
     if not isinstance(odometry_error, OdometryError):
         raise ValueError(f"odometry_error must be an OdometryError, got {type(odometry_error).__name__}")
     check_shape("odometry_error.sd", odometry_error.sd, (3,))

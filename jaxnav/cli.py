@@ -1,4 +1,4 @@
-"""The ``jaxnav`` command line: ``jaxnav --version``, ``jaxnav demo``, ``jaxnav mrclam``, ``jaxnav hf-slam``."""
+"""The ``jaxnav`` command line: ``--version``, ``demo``, ``mrclam``, ``hf-slam``, ``ir``, ``experiments``."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ from jaxnav._version import __version__
 _MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
 _HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 _HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
+_IR_LAYOUTS = ("proposed", "unique-11")
+_IR_DRIVES = ("spots", "loop", "rotation")
 
 
 def _write_plot(draw, path: str) -> None:
@@ -127,6 +129,36 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ir(args: argparse.Namespace) -> int:
+    import jax
+    import numpy as np
+
+    from jaxnav.experiments import ir_positioning as xp
+
+    try:
+        setting = xp.IRSetting(layout=args.layout, drive=args.drive, height=args.height, speed=args.speed_mm / 1000.0,
+                               laps=args.laps, failed_code=args.failed_code, num_particles=args.particles)
+        drive = xp.drive_once(jax.random.PRNGKey(args.seed), setting)
+    except ValueError as err:
+        print(f"jaxnav ir: {err}", file=sys.stderr)
+        return 2
+    steps = drive.sim.controls.shape[0]
+    det = int(np.asarray(drive.sim.detections.valid).sum())
+    trace = drive.trace
+    print(f"jaxnav {__version__} ir: {setting.drive} drive, {setting.layout} layout"
+          f"{f', code {setting.failed_code} failed' if setting.failed_code else ''}, height {setting.height:g} m, "
+          f"{args.speed_mm:g} mm/s, {setting.num_particles} particles, seed {args.seed}")
+    print(f"{steps} steps of {setting.dt:g} s, {det} receiver detections; localization started at "
+          f"{float(drive.mcl.start_s):.1f} s, {int(drive.mcl.restarts)} re-draws after it; scored: "
+          f"{int((np.asarray(drive.inputs.record) >= 0).sum())} steps")
+    print(xp.format_errors([("IR MCL", drive.mcl), ("odometry", drive.dead)]))
+    if not bool(np.asarray(trace.started)[-1]):
+        print("the filter never saw a unique ID: no localization", file=sys.stderr)
+    if args.out:
+        _write_plot(lambda path: xp.plot_drive(drive, path), f"{args.out}.png")
+    return 0
+
+
 def _cmd_experiments(args: argparse.Namespace) -> int:
     import jax
 
@@ -193,6 +225,19 @@ def build_parser() -> argparse.ArgumentParser:
     hf.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
     hf.add_argument("--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)")
     hf.set_defaults(func=_cmd_hf_slam)
+    irp = sub.add_parser("ir", help="localise with IR ceiling emitters on one simulated drive ([W] ch. 5)")
+    irp.add_argument("--layout", choices=_IR_LAYOUTS, default="proposed",
+                     help="proposed (3 unique + 8 repeated IDs) or unique-11 (default proposed)")
+    irp.add_argument("--drive", choices=_IR_DRIVES, default="loop",
+                     help="loop (laps of the predetermined trajectory), spots (the 70 marked spots) or rotation")
+    irp.add_argument("--height", type=float, default=1.2, help="emitter-receiver height in m (eq. 5.3 is for 1.2; default 1.2)")
+    irp.add_argument("--speed-mm", type=float, default=200.0, help="robot speed in mm/s (default 200)")
+    irp.add_argument("--laps", type=int, default=3, help="laps of the loop (default 3; laps 2+ are scored)")
+    irp.add_argument("--failed-code", type=int, default=0, help="switch off the emitters of this repeated ID (1-9; default none)")
+    irp.add_argument("--particles", type=int, default=1000, help="particles (default 1000, as [W])")
+    irp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
+    irp.set_defaults(func=_cmd_ir)
     xp = sub.add_parser("experiments", help="reproduce [W]'s tables and figures with batch Monte Carlo")
     xp.add_argument("action", choices=("list", "run"), help="list the experiments, or run one")
     xp.add_argument("name", nargs="?", help="experiment name (see 'list')")

@@ -51,3 +51,39 @@ def test_hf_slam_choices_match_the_experiment():
     from jaxnav.experiments.hf_slam import METHODS, TRAJECTORIES
 
     assert _HF_METHODS == METHODS and _HF_TRAJECTORIES == TRAJECTORIES
+
+
+def test_ir_choices_match_the_experiment():
+    from jaxnav.cli import _IR_DRIVES, _IR_LAYOUTS
+    from jaxnav.experiments.ir_positioning import DRIVES, LAYOUTS
+
+    assert _IR_LAYOUTS == LAYOUTS and _IR_DRIVES == DRIVES
+
+
+def test_ir_runs_a_drive_and_writes_png(tmp_path):
+    """``jaxnav ir --drive rotation``: the filter localises (error well under the odometry's) and draws it."""
+    pytest.importorskip("matplotlib")
+    out = _jaxnav("ir", "--drive", "rotation", "--out", str(tmp_path / "ir"), cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    rows = {line.split()[0]: line.split() for line in out.stdout.splitlines() if line.startswith(("IR MCL", "odometry"))}
+    mcl_dr, odo_dr = float(rows["IR"][5]), float(rows["odometry"][4])
+    assert mcl_dr < 0.5 * odo_dr, out.stdout
+    assert (tmp_path / "ir.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--height", "0"), "height"),
+    (("--failed-code", "12"), "failed_code"),
+    (("--speed-mm", "-5"), "speed"),
+])
+def test_ir_rejects_bad_arguments(tmp_path, args, message):
+    out = _jaxnav("ir", *args, "--out", "", cwd=tmp_path)
+    assert out.returncode == 2
+    assert message in out.stderr
+
+
+def test_experiments_list_names_the_ir_experiments(tmp_path):
+    out = _jaxnav("experiments", "list", cwd=tmp_path)
+    assert out.returncode == 0
+    for name in ("table-5.2", "table-5.3", "ir-failure", "ir-speeds", "ir-rotation"):
+        assert name in out.stdout

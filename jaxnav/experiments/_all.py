@@ -2,3 +2,4 @@
 
 from jaxnav.experiments import figures as figures  # noqa: F401
 from jaxnav.experiments import tables as tables  # noqa: F401
+from jaxnav.experiments import ir_positioning as ir_positioning  # noqa: F401

@@ -237,3 +237,16 @@ def test_quick_is_within_a_factor_3_of_the_full_run(results, name):
     for r in results[0][name]["rows"]:
         q, f = r["dr_mm"]["median"], full[r["row"]]["dr_mm"]["median"]
         assert f / 3 <= q <= 3 * f, (r["row"], q, f)
+
+
+def test_drive_once_scores_the_run_of_run_once():
+    """``drive_once`` (traces for a figure) and ``run_once`` (the batched cell function) use the same
+    keys: one seeded run gives the same errors through both."""
+    setting = xp.IRSetting(drive="rotation", num_particles=300)
+    key = jax.random.PRNGKey(4)
+    drive = xp.drive_once(key, setting)
+    inputs = xp.drive_inputs(setting)
+    for algorithm, errors in (("mcl", drive.mcl), ("odometry", drive.dead)):
+        again = xp.run_once(algorithm, 300)(key, inputs)
+        for a, b in zip(errors, again):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)

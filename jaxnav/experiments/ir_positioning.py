@@ -342,22 +342,33 @@ def run_once(algorithm: str, num_particles: int):
     area = ir_world.layout_area(ir.experiment_layout())  # unique11_layout has the same positions
 
     def fn(key: jax.Array, inputs: DriveInputs) -> IRErrors:
-        k_sim, k_init, k_run = jax.random.split(key, 3)
-        sim = ir_world.simulate(k_sim, installed_layout(key, inputs), inputs.path, inputs.dt, inputs.receiver)
-        if algorithm == "mcl":
-            state0 = ir_mcl.init(k_init, config, inputs.filter, area)
-            _, trace = ir_mcl.run(k_run, config, inputs.filter, sim.controls, sim.detections, state0)
-            estimate = trace.estimate
-            restarts = jnp.maximum(jnp.sum(trace.reinitialised) - 1, 0)
-            start_s = jnp.argmax(trace.started) * inputs.dt + inputs.dt
-        else:
-            estimate = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
-            restarts = jnp.asarray(0)
-            start_s = jnp.asarray(0.0)
-        mean, worst = score(estimate, sim.true_poses, inputs.record)
-        return IRErrors(*mean, *worst, restarts.astype(jnp.int32), jnp.asarray(start_s, jnp.float32))
+        sim, trace = _simulate_and_filter(key, inputs, config if algorithm == "mcl" else None, area)
+        if trace is None:
+            return _errors(ir_world.dead_reckoning(sim.initial_pose, sim.controls), sim, inputs)
+        return _errors(trace.estimate, sim, inputs, trace)
 
     return fn
+
+
+def _simulate_and_filter(key, inputs: DriveInputs, config: ir_mcl.IRMCLConfig | None, area):
+    """The drive of one run and, with a ``config``, IR MCL's trace on it (keys as :func:`run_once`)."""
+    k_sim, k_init, k_run = jax.random.split(key, 3)
+    sim = ir_world.simulate(k_sim, installed_layout(key, inputs), inputs.path, inputs.dt, inputs.receiver)
+    if config is None:
+        return sim, None
+    state0 = ir_mcl.init(k_init, config, inputs.filter, area)
+    _, trace = ir_mcl.run(k_run, config, inputs.filter, sim.controls, sim.detections, state0)
+    return sim, trace
+
+
+def _errors(estimate, sim, inputs: DriveInputs, trace: ir_mcl.IRMCLInfo | None = None) -> IRErrors:
+    mean, worst = score(estimate, sim.true_poses, inputs.record)
+    if trace is None:
+        restarts, start_s = jnp.asarray(0), jnp.asarray(0.0)
+    else:
+        restarts = jnp.maximum(jnp.sum(trace.reinitialised) - 1, 0)
+        start_s = (jnp.argmax(trace.started) + 1) * inputs.dt
+    return IRErrors(*mean, *worst, restarts.astype(jnp.int32), jnp.asarray(start_s, jnp.float32))
 
 
 class Drive(NamedTuple):
@@ -388,14 +399,10 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
     """
     inputs = drive_inputs(setting)
     config = ir_mcl.IRMCLConfig(num_particles=setting.num_particles)
-    k_sim, k_init, k_run = jax.random.split(key, 3)
-    sim = ir_world.simulate(k_sim, installed_layout(key, inputs), inputs.path, inputs.dt, inputs.receiver)
-    state0 = ir_mcl.init(k_init, config, inputs.filter, ir_world.layout_area(ir.experiment_layout()))
-    _, trace = ir_mcl.run(k_run, config, inputs.filter, sim.controls, sim.detections, state0)
+    sim, trace = _simulate_and_filter(key, inputs, config, ir_world.layout_area(ir.experiment_layout()))
     odometry = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
-    mcl = run_once("mcl", setting.num_particles)(key, inputs)
-    dead = run_once("odometry", setting.num_particles)(key, inputs)
-    return Drive(setting, inputs, sim, trace, odometry, mcl, dead)
+    return Drive(setting, inputs, sim, trace, odometry, _errors(trace.estimate, sim, inputs, trace),
+                 _errors(odometry, sim, inputs))
 
 
 def format_errors(rows: Sequence[tuple[str, IRErrors]]) -> str:

@@ -1,0 +1,928 @@
+"""UHF-RFID sensor models: RSSI and phase of a passive tag seen by a monostatic reader ([A] ch. 4).
+
+Overview
+--------
+A reader at ``g = (x_g, y_g, z_g, ψ_g)`` (m, m, m, rad: position and the yaw of
+its antenna boresight, [A] §4.3.1) interrogates a passive tag at
+``X = (x, y, z)`` (m). Ground is the plane ``z = 0``, so the heights of the
+two-ray model are ``h_R = z_g`` and ``h_T = z``. Each read gives an RSSI
+``y`` (a received power, **W**) and a phase ``φ`` (**rad**, in ``[0, 2π)``).
+Every function here is pure, broadcasts over leading axes, and is
+differentiable in its continuous arguments (tag position, ``k``, ``θ``, ``λ``,
+``σ``, phase offset); :func:`jax.grad` never returns NaN for valid inputs.
+
+Received power ([A] §4.1.2, App. A, monostatic)
+------------------------------------------------
+    y = P_T · η_T · G_R² · G_T² · L² · |h|⁴,     |h|² ~ Gamma(k, θ)  (shape k, scale θ)
+
+* ``P_T`` transmit power (W), ``η_T`` tag scattering efficiency, ``G_T`` tag
+  antenna gain (linear), ``G_R`` the reader antenna gain towards the tag
+  (:func:`antenna_gain`).
+* Two-ray path loss ([A] §4.1.2 and App. A; :func:`two_ray_path_loss`), with
+  ``D`` the reader–tag distance (m) and breakpoint ``D_c = 4π h_R h_T / λ``:
+
+      L = (λ / (4π D))²        if D < D_c
+      L = (h_R h_T / D²)²      if D ≥ D_c
+
+  The two branches are equal at ``D = D_c`` (both are
+  ``(λ² / (16π² h_R h_T))²``), so ``L`` is continuous; its slope jumps from
+  ``D⁻²`` to ``D⁻⁴``.
+* ``a = P_T η_T G_R² G_T² L²`` (:func:`power_scale`) is the deterministic
+  part, so ``y = a·(|h|²)²`` ([A] §4.3.1) and ``E[y] = a·k(k+1)θ²``
+  (:func:`mean_power`).
+
+Reader antenna gain ([A] §4.3.1, Fig. 4.2)
+------------------------------------------
+The antenna vector is horizontal with yaw ``ψ``. [A] gives the gain at the
+tag's direction angles ``(φ_T1, φ_T2, φ_T3)``: ``G_0`` when all three lie in
+``[φ − φ_s, φ + φ_s]``, ``G_BLL`` when one lies outside
+``[φ − 2φ_s, φ + 2φ_s]``, ``G_SLL`` elsewhere (with [A]'s simplification
+``φ_s1 = φ_s2 = φ_s``: a main lobe of opening ``2φ_s`` and two side lobes of
+``φ_s`` each). The thesis does not define the triple further; we read it as
+the direction angles of the reader→tag vector against the axes of the
+**antenna frame** (boresight, horizontal-left, up), compared with those of the
+boresight ``(0, π/2, π/2)``, so that the pattern turns with the antenna. In
+that frame the first direction angle is the off-boresight angle ``γ`` and the
+other two deviate from ``π/2`` by at most ``γ``, so the rule is exactly
+
+    G_R = G_0      if γ ≤ φ_s
+    G_R = G_SLL    if φ_s < γ ≤ 2φ_s
+    G_R = G_BLL    if γ > 2φ_s,        γ = ∠(tag − reader, (cos ψ, sin ψ, 0)) ∈ [0, π]
+
+(a cone pattern). :func:`antenna_gain` implements it; the test suite checks the
+equivalence with the three-angle rule written out literally. The model is
+piecewise constant, so its gradient with respect to positions is zero (never
+NaN). For gradient work, ``softness=τ`` (rad) replaces each step by a logistic
+``σ((edge − γ)/τ)``; ``τ → 0`` recovers the thesis's model.
+
+RSSI likelihood ([A] §4.3.1, App. C)
+-------------------------------------
+With ``g = |h|² ~ Gamma(k, θ)`` and ``y = a·g²`` the density of ``y`` is
+
+    W_RSSI = f(y) = 1 / (2 θ^k Γ(k) a^{k/2}) · y^{(k−2)/2} · exp(−√(y/a) / θ),
+
+computed in log form by :func:`log_w_rssi` (``gammaln``, no raw product).
+
+Phase ([A] §4.1.2) and the phase weight ([A] §4.3.2)
+-----------------------------------------------------
+    φ = (−4π D / λ + θ_off) mod 2π  ∈ [0, 2π)          (:func:`phase`)
+
+``θ_off`` is the constant offset of cables and tag; [A]'s multipath term
+``φ_n`` is the noise, not part of the prediction. The weight of a particle
+uses [A]'s distance metric ``Δ`` (Alg. of §4.3.2, lines 1–4): phases are
+turned into radii on circles of circumference ``λ/2`` and ``Δ`` is the distance
+to the nearest peak, ``Δ = min(|ρ_φ − ρ_d|, λ/2 − |ρ_φ − ρ_d|) ∈ [0, λ/4]``.
+That equals
+
+    Δ = (λ / 4π) · |wrap(φ_meas − φ_pred)|     (m),  wrap to [−π, π)
+
+(:func:`phase_distance`), so a read just below ``2π`` and one just above ``0``
+are both close to a prediction of ``0``. The weight is
+``W_PHASE = N(Δ; 0, σ²)`` (:func:`log_w_phase`, normalised Gaussian density
+in log form).
+
+**σ convention.** ``Δ`` is a distance, so ``σ`` is in **metres**, as in
+[A]: "σ_phase ≈ 0.05λ–0.2λ". The default is
+``σ = DEFAULT_PHASE_SIGMA_FRACTION · λ = 0.1 λ``. In phase units this is
+``σ_φ = 4π σ / λ`` rad (0.1 λ ↔ 1.26 rad).
+
+Estimating (k, θ) from an anchor tag ([A] §4.3.1, App. D, App. E)
+-------------------------------------------------------------------
+Reads ``y_i`` of a tag at a known place have known ``a_i``, so
+``u_i = √(y_i / a_i) ~ Gamma(k, θ)``. App. D: ``θ̂ = ū / k̂`` with
+``ū = (1/N) Σ u_i``, and ``k̂`` solves ``ln k − ψ(k) = s``,
+``s = ln ū − (1/N) Σ ln u_i``. App. E truncates the Stirling series,
+``ln k − ψ(k) ≈ (1/2k)(1 + 1/(6k))``, which gives the closed form
+
+    k̂ ≈ (3 + √(9 + 12 s)) / (12 s)          (:func:`estimate_gamma_closed_form`)
+
+Approximation error: ``ln k − ψ(k) = 1/(2k) + 1/(12k²) − 1/(120k⁴) + …``
+(an asymptotic series whose remainder has the sign of, and is smaller than,
+the first omitted term), so the closed form **overestimates** the exact ML
+``k*`` and ``0 ≤ k̂ − k* ≤ (1/(120 k*⁴)) / (1/(2k̂²) + 1/(6k̂³))``, a relative
+error ``≲ 1/(60 k³)`` (2 % at ``k = 1``, 1.3·10⁻⁴ at ``k = 5``);
+``θ̂ k̂ = θ* k* = ū`` exactly. :func:`closed_form_error_bound` returns this
+bound. :func:`estimate_gamma_ml` maximises the exact likelihood with optax
+L-BFGS over ``(log k, log θ)``, started from the closed form.
+:func:`estimate_gamma` returns :data:`DEFAULT_GAMMA` until ``min_reads`` valid
+reads exist ([A] §4.3.1, item 2: "a fixed predetermined value has to be
+used, until their number exceeds a certain limit"). Missing reads are
+masked (``mask`` False), never zeros; masked entries may hold any value.
+
+Units and helpers
+-----------------
+SI everywhere: m, rad, W; gains are linear (dimensionless). Readers report
+dBm and antenna sheets dBi: :func:`dbm_to_watt`, :func:`watt_to_dbm`,
+:func:`db_to_linear`, :func:`linear_to_db`. :func:`wrap_phase` maps a reader's
+``[−π, π)`` phase to ``[0, 2π)``.
+
+Where the thesis is ambiguous, and what we chose
+------------------------------------------------
+* **Wavelength.** [A] §5.2 states λ = 0.173 m; a European UHF reader (866 MHz)
+  has λ = c/f ≈ 0.346 m, so 0.173 m is likely λ/2 (SPEC §4). λ is a parameter
+  of every function (per read, to allow channel hopping); the default
+  :data:`DEFAULT_WAVELENGTH` is the thesis's 0.173 m (:data:`A_WAVELENGTH`) so
+  that reproductions match [A]; real 866 MHz data should pass
+  :data:`WAVELENGTH_866MHZ` (or :func:`wavelength_from_frequency`).
+* **Antenna direction angles**: the antenna-frame reading above (a cone pattern).
+* **Phase sign.** §4.1.2 has ``φ = −4πD/λ + θ``, but the Δ algorithm of §4.3.2
+  compares ``(φ − θ) mod 2π`` with ``+4π (D mod λ/2)/λ``, which matches
+  ``φ = +4πD/λ + θ`` instead. We keep §4.1.2's sign and compare the measured
+  phase with the *predicted* one, which is [A]'s Δ for a consistent sign.
+* **Numbers [A] does not give** (our choices, all parameters):
+  ``G_0 = 8 dBi``, ``G_SLL = −2 dBi``, ``G_BLL = −12 dBi``, ``φ_s = 30°``
+  (a typical UHF patch antenna: 60° main lobe, side lobes 10 dB and back lobe
+  20 dB below the main lobe); ``P_T = 30 dBm = 1 W``, ``η_T = 0.25``,
+  ``G_T = 1.64`` (a half-wave dipole, 2.15 dBi); :data:`DEFAULT_GAMMA`
+  ``k = 2, θ = 0.5`` (unit mean fading power ``E|h|² = kθ = 1``, Nakagami
+  m = 2); :data:`DEFAULT_MIN_READS` = 30.
+* [A] writes the §4.3.1 weight as a product over time; here each function
+  returns a log-density and the filter adds them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax.scipy.special import gammaln
+
+from jaxnav.core.validation import (
+    check_choice,
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    is_concrete,
+)
+from jaxnav.core.weights import wrap_angle
+
+__all__ = [
+    "SPEED_OF_LIGHT",
+    "A_WAVELENGTH",
+    "WAVELENGTH_866MHZ",
+    "DEFAULT_WAVELENGTH",
+    "DEFAULT_PHASE_SIGMA_FRACTION",
+    "AntennaParams",
+    "DEFAULT_ANTENNA",
+    "ChannelParams",
+    "DEFAULT_CHANNEL",
+    "GammaParams",
+    "DEFAULT_GAMMA",
+    "DEFAULT_MIN_READS",
+    "GammaFit",
+    "dbm_to_watt",
+    "watt_to_dbm",
+    "db_to_linear",
+    "linear_to_db",
+    "wavelength_from_frequency",
+    "off_boresight_angle",
+    "antenna_gain",
+    "two_ray_breakpoint",
+    "two_ray_path_loss",
+    "power_scale",
+    "received_power",
+    "mean_power",
+    "sample_rssi",
+    "log_w_rssi",
+    "rssi_log_likelihood",
+    "wrap_phase",
+    "phase",
+    "phase_distance",
+    "log_w_phase",
+    "closed_form_error_bound",
+    "estimate_gamma_closed_form",
+    "estimate_gamma_ml",
+    "estimate_gamma",
+    "validate_antenna",
+    "validate_channel",
+    "validate_gamma",
+    "validate_rssi",
+    "validate_phase",
+]
+
+_TWO_PI = 2.0 * math.pi
+
+SPEED_OF_LIGHT = 299_792_458.0
+"""m/s."""
+
+A_WAVELENGTH = 0.173
+"""λ stated in [A] §5.2 (m); likely λ/2 of an 866 MHz reader (module docstring)."""
+
+WAVELENGTH_866MHZ = SPEED_OF_LIGHT / 866e6
+"""λ of a European UHF reader at 866 MHz, ≈ 0.3462 m."""
+
+DEFAULT_WAVELENGTH = A_WAVELENGTH
+"""Default λ (m): the thesis's value, for reproductions of [A]."""
+
+DEFAULT_PHASE_SIGMA_FRACTION = 0.1
+"""σ_phase = 0.1·λ (m), inside [A] §4.3.2's 0.05λ–0.2λ."""
+
+
+# --------------------------------------------------------------------------------------
+# Parameters
+# --------------------------------------------------------------------------------------
+
+
+class AntennaParams(NamedTuple):
+    """Reader antenna of [A] §4.3.1 (a differentiable pytree).
+
+    Attributes:
+        g0: main-lobe gain ``G_0`` (linear).
+        g_sll: side-lobe gain ``G_SLL`` (linear).
+        g_bll: back-lobe gain ``G_BLL`` (linear).
+        phi_s: ``φ_s`` (rad): main lobe within ``φ_s`` of the boresight (opening
+            ``2φ_s``), side lobes from ``φ_s`` to ``2φ_s``; ``0 < φ_s ≤ π/2``.
+    """
+
+    g0: Any
+    g_sll: Any
+    g_bll: Any
+    phi_s: Any
+
+
+DEFAULT_ANTENNA = AntennaParams(g0=10.0**0.8, g_sll=10.0**-0.2, g_bll=10.0**-1.2, phi_s=math.pi / 6)
+"""8 dBi main lobe, −2 dBi side lobes, −12 dBi back lobe, φ_s = 30° (our choice; [A] gives none)."""
+
+
+class ChannelParams(NamedTuple):
+    """Constants of the monostatic power model of [A] §4.1.2 / App. A (a pytree).
+
+    Attributes:
+        tx_power: ``P_T`` (W).
+        tag_efficiency: ``η_T``, tag scattering efficiency (0 < η_T ≤ 1).
+        tag_gain: ``G_T`` (linear).
+        wavelength: ``λ`` (m).
+        antenna: :class:`AntennaParams` of the reader.
+    """
+
+    tx_power: Any
+    tag_efficiency: Any
+    tag_gain: Any
+    wavelength: Any
+    antenna: AntennaParams
+
+
+DEFAULT_CHANNEL = ChannelParams(
+    tx_power=1.0, tag_efficiency=0.25, tag_gain=1.64, wavelength=DEFAULT_WAVELENGTH, antenna=DEFAULT_ANTENNA
+)
+"""P_T = 1 W (30 dBm), η_T = 0.25, G_T = 1.64 (dipole), λ = 0.173 m ([A] §5.2), :data:`DEFAULT_ANTENNA`."""
+
+
+class GammaParams(NamedTuple):
+    """``|h|² ~ Gamma(k, θ)``: shape ``k`` > 0, scale ``θ`` > 0 ([A] §4.1.2)."""
+
+    k: Any
+    theta: Any
+
+
+DEFAULT_GAMMA = GammaParams(k=2.0, theta=0.5)
+"""Used until enough anchor reads exist: unit mean fading power kθ = 1 (our choice)."""
+
+DEFAULT_MIN_READS = 30
+"""Valid anchor reads needed before (k, θ) is estimated instead of :data:`DEFAULT_GAMMA`."""
+
+
+class GammaFit(NamedTuple):
+    """Result of :func:`estimate_gamma`.
+
+    Attributes:
+        params: the :class:`GammaParams` used (estimate or default).
+        n_valid: number of valid (unmasked) reads.
+        used_default: True when ``params`` is the default (too few reads, or a
+            degenerate sample such as identical reads).
+    """
+
+    params: GammaParams
+    n_valid: jax.Array
+    used_default: jax.Array
+
+
+# --------------------------------------------------------------------------------------
+# Units
+# --------------------------------------------------------------------------------------
+
+
+def dbm_to_watt(p_dbm: Any) -> jax.Array:
+    """Power in dBm → W: ``10^((p − 30)/10)`` (30 dBm = 1 W)."""
+    return 10.0 ** ((jnp.asarray(p_dbm) - 30.0) / 10.0)
+
+
+def watt_to_dbm(p_w: Any) -> jax.Array:
+    """Power in W → dBm: ``10·log10(p) + 30``."""
+    return 10.0 * jnp.log10(jnp.asarray(p_w)) + 30.0
+
+
+def db_to_linear(x_db: Any) -> jax.Array:
+    """Gain in dB (dBi) → linear ratio ``10^(x/10)``."""
+    return 10.0 ** (jnp.asarray(x_db) / 10.0)
+
+
+def linear_to_db(x: Any) -> jax.Array:
+    """Linear gain → dB: ``10·log10(x)``."""
+    return 10.0 * jnp.log10(jnp.asarray(x))
+
+
+def wavelength_from_frequency(frequency_hz: Any) -> jax.Array:
+    """``λ = c / f`` (m) for a carrier frequency in Hz (866e6 → 0.3462 m)."""
+    return SPEED_OF_LIGHT / jnp.asarray(frequency_hz)
+
+
+# --------------------------------------------------------------------------------------
+# Validation (host-side; value checks skipped for tracers)
+# --------------------------------------------------------------------------------------
+
+
+def validate_antenna(params: AntennaParams) -> None:
+    """Gains finite and > 0; ``0 < φ_s ≤ π/2`` (so that ``2φ_s ≤ π`` leaves a back lobe)."""
+    check_positive("antenna.g0", params.g0)
+    check_positive("antenna.g_sll", params.g_sll)
+    check_positive("antenna.g_bll", params.g_bll)
+    check_positive("antenna.phi_s", params.phi_s)
+    if is_concrete(params.phi_s) and np.any(np.asarray(params.phi_s) > math.pi / 2 + 1e-7):
+        raise ValueError(
+            f"antenna.phi_s must be in (0, π/2] rad (main lobe 2φ_s, side lobes up to 2φ_s ≤ π), "
+            f"got {np.asarray(params.phi_s)}"
+        )
+
+
+def validate_channel(params: ChannelParams) -> None:
+    """``P_T``, ``η_T``, ``G_T``, ``λ`` finite and > 0 (``η_T ≤ 1``), and the antenna."""
+    check_positive("tx_power", params.tx_power)
+    check_positive("tag_efficiency", params.tag_efficiency)
+    if is_concrete(params.tag_efficiency) and np.any(np.asarray(params.tag_efficiency) > 1.0):
+        raise ValueError(f"tag_efficiency must be in (0, 1], got {np.asarray(params.tag_efficiency)}")
+    check_positive("tag_gain", params.tag_gain)
+    check_positive("wavelength", params.wavelength)
+    validate_antenna(params.antenna)
+
+
+def validate_gamma(params: GammaParams) -> None:
+    """Gamma shape ``k`` and scale ``θ`` must be finite and > 0."""
+    check_positive("k", params.k)
+    check_positive("theta", params.theta)
+
+
+def _valid_values(x: Any, mask: Any) -> np.ndarray | None:
+    if not (is_concrete(x) and is_concrete(mask)):
+        return None
+    v = np.asarray(x)
+    if mask is None:
+        return v.ravel()
+    return np.broadcast_to(v, np.broadcast_shapes(v.shape, np.shape(mask)))[
+        np.broadcast_to(np.asarray(mask, bool), np.broadcast_shapes(v.shape, np.shape(mask)))
+    ]
+
+
+def validate_rssi(y: Any, mask: Any = None, name: str = "y") -> None:
+    """An RSSI must be a received power: finite and > 0 (W). Masked entries are not checked."""
+    v = _valid_values(y, mask)
+    if v is None:
+        return
+    if not np.all(np.isfinite(v)) or np.any(v <= 0):
+        bad = v[~(np.isfinite(v) & (v > 0))]
+        raise ValueError(
+            f"{name} (RSSI) must be a positive received power in W, got {bad[:5].tolist()}; convert "
+            "dBm with dbm_to_watt, and mask missing reads instead of writing 0"
+        )
+
+
+def validate_phase(phi: Any, name: str = "phi_meas") -> None:
+    """A measured phase must be finite and in ``[0, 2π)`` rad (use :func:`wrap_phase` first)."""
+    if not is_concrete(phi):
+        return
+    v = np.asarray(phi)
+    if not np.all(np.isfinite(v)) or np.any(v < 0) or np.any(v >= _TWO_PI):
+        raise ValueError(
+            f"{name} must be a phase in [0, 2π) rad, got values in [{np.nanmin(v):.6g}, {np.nanmax(v):.6g}]"
+            f"{' (with NaN/inf)' if not np.all(np.isfinite(v)) else ''}; readers reporting [-π, π) "
+            "need wrap_phase"
+        )
+
+
+def _check_last_dim(name: str, x: Any, n: int) -> None:
+    shape = np.shape(x)
+    if len(shape) < 1 or shape[-1] != n:
+        raise ValueError(f"{name} must have shape (..., {n}), got {tuple(shape)}")
+
+
+# --------------------------------------------------------------------------------------
+# Antenna gain ([A] §4.3.1)
+# --------------------------------------------------------------------------------------
+
+
+def _safe_sqrt(x: jax.Array) -> jax.Array:
+    """``sqrt(x)`` with a zero (not infinite) gradient at ``x = 0``."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
+def _off_boresight(direction: jax.Array, heading: jax.Array) -> jax.Array:
+    d = jnp.asarray(direction)
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    dot = dx * c + dy * s
+    # |d × b| for b = (c, s, 0): (−dz·s, dz·c, dx·s − dy·c)
+    lateral = dx * s - dy * c
+    cross = _safe_sqrt(dz * dz + lateral * lateral)
+    zero = (cross == 0) & (dot == 0)
+    return jnp.where(zero, 0.0, jnp.arctan2(cross, jnp.where(zero, 1.0, dot)))
+
+
+def off_boresight_angle(direction: Any, heading: Any) -> jax.Array:
+    """Angle ``γ ∈ [0, π]`` (rad) between ``direction [..., 3]`` and the boresight.
+
+    ``direction`` is the reader→tag vector (any length, m); the boresight is the
+    horizontal unit vector ``(cos ψ, sin ψ, 0)`` of yaw ``heading = ψ`` (rad),
+    [A] §4.3.1 ("the antenna vector is always ... parallel to the ground").
+    Computed as ``atan2(|d × b|, d·b)``: accurate near 0 and π, gradient finite
+    everywhere (zero at ``d = 0``).
+    """
+    _check_last_dim("direction", direction, 3)
+    return _off_boresight(direction, jnp.asarray(heading))
+
+
+def antenna_gain(direction: Any, heading: Any, params: AntennaParams = DEFAULT_ANTENNA, softness: Any = None) -> jax.Array:
+    """Reader antenna gain ``G_R`` (linear) towards ``direction [..., 3]``, [A] §4.3.1.
+
+    ``G_0`` for ``γ ≤ φ_s`` (main lobe, opening ``2φ_s``), ``G_SLL`` for
+    ``φ_s < γ ≤ 2φ_s`` (side lobes), ``G_BLL`` beyond (back lobe), with ``γ``
+    the off-boresight angle (:func:`off_boresight_angle`; module docstring for
+    why this is [A]'s three-direction-angle rule). Piecewise constant: the
+    gradient with respect to ``direction``/``heading`` is zero, never NaN.
+
+    Args:
+        direction: reader→tag vector ``tag − reader`` (m), shape ``[..., 3]``.
+        heading: boresight yaw ``ψ`` (rad), broadcastable to ``direction[..., 0]``.
+        params: :class:`AntennaParams`.
+        softness: ``None`` for [A]'s step model, or ``τ > 0`` (rad): each step
+            becomes a logistic ``σ((edge − γ)/τ)``, a smooth relaxation for
+            gradient work.
+    """
+    _check_last_dim("direction", direction, 3)
+    validate_antenna(params)
+    if softness is not None:
+        check_positive("softness", softness)
+    params = AntennaParams(*(jnp.asarray(p) for p in params))
+    return _gain_nocheck(jnp.asarray(direction), jnp.asarray(heading), params, softness)
+
+
+# --------------------------------------------------------------------------------------
+# Path loss and received power ([A] §4.1.2, App. A)
+# --------------------------------------------------------------------------------------
+
+
+def two_ray_breakpoint(h_reader: Any, h_tag: Any, wavelength: Any) -> jax.Array:
+    """Breakpoint distance ``D_c = 4π h_R h_T / λ`` (m) of the two-ray model ([A] §4.1.2)."""
+    return 4.0 * jnp.pi * jnp.asarray(h_reader) * jnp.asarray(h_tag) / jnp.asarray(wavelength)
+
+
+_TINY_DISTANCE = 1e-6  # m; distances are clamped here so 1/D never overflows
+
+
+def _two_ray(distance, h_reader, h_tag, wavelength):
+    d = jnp.maximum(jnp.asarray(distance), _TINY_DISTANCE)
+    near = (wavelength / (4.0 * jnp.pi * d)) ** 2
+    far = (h_reader * h_tag / (d * d)) ** 2
+    return jnp.where(d < two_ray_breakpoint(h_reader, h_tag, wavelength), near, far)
+
+
+def two_ray_path_loss(distance: Any, h_reader: Any, h_tag: Any, wavelength: Any = DEFAULT_WAVELENGTH) -> jax.Array:
+    """Two-ray path loss ``L`` (power ratio, one way), [A] §4.1.2 and App. A.
+
+    ``L = (λ/(4πD))²`` for ``D < D_c = 4π h_R h_T/λ`` (free space, Friis), else
+    ``(h_R h_T / D²)²`` (plane earth). Continuous at ``D_c``. Both branches are
+    finite for every ``D`` (``D`` is clamped to ≥ 1 µm), so the ``where`` switch
+    passes no NaN to the gradient.
+
+    Args:
+        distance: reader–tag distance ``D`` (m), ≥ 0.
+        h_reader, h_tag: heights above the ground (m), ≥ 0.
+        wavelength: ``λ`` (m), > 0; may differ per read.
+    """
+    check_nonnegative("distance", distance)
+    check_nonnegative("h_reader", h_reader)
+    check_nonnegative("h_tag", h_tag)
+    check_positive("wavelength", wavelength)
+    return _two_ray(jnp.asarray(distance), jnp.asarray(h_reader), jnp.asarray(h_tag), jnp.asarray(wavelength))
+
+
+def _norm(v: jax.Array) -> jax.Array:
+    return _safe_sqrt(jnp.sum(v * v, axis=-1))
+
+
+def _power_scale(reader_pose, tag_xyz, params, softness, wavelength):
+    d = tag_xyz - reader_pose[..., :3]
+    dist = _norm(d)
+    g_r = _gain_nocheck(d, reader_pose[..., 3], params.antenna, softness)
+    loss = _two_ray(dist, reader_pose[..., 2], tag_xyz[..., 2], wavelength)
+    return params.tx_power * params.tag_efficiency * (g_r * params.tag_gain) ** 2 * loss * loss
+
+
+def _gain_nocheck(direction, heading, params, softness):
+    gamma = _off_boresight(direction, heading)
+    g0, gs, gb, ps = params
+    if softness is None:
+        return jnp.where(gamma <= ps, g0, jnp.where(gamma <= 2.0 * ps, gs, gb))
+    inner = jax.nn.sigmoid((ps - gamma) / softness)
+    outer = jax.nn.sigmoid((2.0 * ps - gamma) / softness)
+    return gb + (gs - gb) * outer + (g0 - gs) * inner
+
+
+def _check_geometry(reader_pose, tag_xyz):
+    _check_last_dim("reader_pose", reader_pose, 4)
+    _check_last_dim("tag_xyz", tag_xyz, 3)
+    check_finite("reader_pose", reader_pose)
+    check_finite("tag_xyz", tag_xyz)
+    if is_concrete(reader_pose) and np.any(np.asarray(reader_pose)[..., 2] < 0):
+        raise ValueError("reader_pose z (the reader's height above the ground z = 0) must be ≥ 0")
+    if is_concrete(tag_xyz) and np.any(np.asarray(tag_xyz)[..., 2] < 0):
+        raise ValueError("tag_xyz z (the tag's height above the ground z = 0) must be ≥ 0")
+
+
+def power_scale(
+    reader_pose: Any, tag_xyz: Any, params: ChannelParams = DEFAULT_CHANNEL, softness: Any = None, wavelength: Any = None
+) -> jax.Array:
+    """``a = P_T η_T G_R² G_T² L²`` (W), so that ``RSSI = a·|h|⁴`` ([A] §4.3.1).
+
+    Args:
+        reader_pose: ``[..., 4]`` reader ``(x, y, z, ψ)`` (m, m, m, rad); ``z`` is
+            its height ``h_R``.
+        tag_xyz: ``[..., 3]`` tag position (m); ``z`` is its height ``h_T``.
+            Broadcasts against ``reader_pose`` (e.g. ``[M, 3]`` particles against
+            one ``[4]`` pose).
+        params: :class:`ChannelParams`.
+        softness: antenna step relaxation (rad), see :func:`antenna_gain`.
+        wavelength: optional per-read ``λ`` (m) overriding ``params.wavelength``
+            (channel hopping).
+    """
+    _check_geometry(reader_pose, tag_xyz)
+    validate_channel(params)
+    lam = params.wavelength if wavelength is None else wavelength
+    check_positive("wavelength", lam)
+    if softness is not None:
+        check_positive("softness", softness)
+    return _power_scale(jnp.asarray(reader_pose), jnp.asarray(tag_xyz), params, softness, jnp.asarray(lam))
+
+
+def received_power(reader_pose: Any, tag_xyz: Any, params: ChannelParams, h2: Any, **kwargs: Any) -> jax.Array:
+    """Monostatic received power ``y = P_T η_T G_R² G_T² L² |h|⁴`` (W), [A] §4.1.2 / App. A.
+
+    ``h2 = |h|²`` is the fading power (a ``Gamma(k, θ)`` draw in the model);
+    ``kwargs`` go to :func:`power_scale`.
+    """
+    check_nonnegative("h2", h2)
+    return power_scale(reader_pose, tag_xyz, params, **kwargs) * jnp.asarray(h2) ** 2
+
+
+def mean_power(reader_pose: Any, tag_xyz: Any, params: ChannelParams, gamma: GammaParams, **kwargs: Any) -> jax.Array:
+    """Expected received power ``E[y] = a·E[|h|⁴] = a·k(k+1)θ²`` (W)."""
+    validate_gamma(gamma)
+    k, th = gamma
+    return power_scale(reader_pose, tag_xyz, params, **kwargs) * k * (k + 1.0) * th * th
+
+
+def sample_rssi(key: jax.Array, a: Any, gamma: GammaParams, shape: tuple[int, ...] | None = None) -> jax.Array:
+    """Draw ``y = a·g²``, ``g = |h|² ~ Gamma(k, θ)`` (W); ``shape`` defaults to the broadcast of ``a``, k, θ.
+
+    ``jax.random.gamma`` is reparameterised, so the draw is differentiable in
+    ``a``, ``k`` and ``θ``.
+    """
+    validate_gamma(gamma)
+    check_positive("a", a)
+    a = jnp.asarray(a)
+    k = jnp.asarray(gamma.k, dtype=jnp.result_type(float))
+    th = jnp.asarray(gamma.theta)
+    if shape is None:
+        shape = jnp.broadcast_shapes(a.shape, k.shape, th.shape)
+    g = th * jax.random.gamma(key, jnp.broadcast_to(k, shape), shape)
+    return a * g * g
+
+
+# --------------------------------------------------------------------------------------
+# RSSI weight ([A] §4.3.1, App. C)
+# --------------------------------------------------------------------------------------
+
+
+def _log_w_rssi(y, a, k, theta):
+    # (k−2)/2·log y − (k/2)·log a = k·log u − log y with u = √(y/a), the Gamma variable.
+    # y ≤ 0 (no read) or a = 0 (a tag on the ground, h_T = 0) give −inf, never NaN, and a
+    # zero gradient (the double where keeps inf − inf out of the unselected branch).
+    ok = (y > 0) & (a > 0)
+    log_y = jnp.log(jnp.where(ok, y, 1.0))
+    log_u = 0.5 * (log_y - jnp.log(jnp.where(ok, a, 1.0)))
+    lw = -jnp.log(2.0) - k * jnp.log(theta) - gammaln(k) - log_y + k * log_u - jnp.exp(log_u) / theta
+    return jnp.where(ok, lw, -jnp.inf)
+
+
+def log_w_rssi(y: Any, a: Any, k: Any, theta: Any) -> jax.Array:
+    """``log W_RSSI = log f(y)`` of the scaled squared-Gamma density, [A] §4.3.1 / App. C.
+
+        log f = −log 2 − k log θ − log Γ(k) − (k/2) log a + ((k−2)/2) log y − √(y/a)/θ
+
+    for ``y = a·g²``, ``g ~ Gamma(k, θ)``; integrates to 1 over ``y > 0``.
+    Host-side, ``y ≤ 0`` and ``a ≤ 0`` are refused; under ``jit`` (values
+    unchecked) they give ``−inf`` (zero weight), never NaN. Missing reads should
+    be masked by the caller.
+
+    Args:
+        y: RSSI (W), > 0. Any broadcastable shape.
+        a: ``P_T η_T G_R² G_T² L²`` (W), > 0 (:func:`power_scale`).
+        k, theta: Gamma shape and scale, > 0.
+    """
+    validate_rssi(y)
+    check_positive("a", a)
+    validate_gamma(GammaParams(k, theta))
+    return _log_w_rssi(jnp.asarray(y), jnp.asarray(a), jnp.asarray(k), jnp.asarray(theta))
+
+
+def _masked_weights(shape, mask):
+    if mask is None:
+        return jnp.ones(shape, bool)
+    return jnp.broadcast_to(jnp.asarray(mask, bool), shape)
+
+
+def rssi_log_likelihood(reads: Any, a: Any, gamma: GammaParams, mask: Any = None) -> jax.Array:
+    """``ℓ(k, θ) = Σ_i log f(y_i; a_i, k, θ)`` over valid reads, [A] App. D.
+
+    Masked entries contribute 0 whatever they hold (NaN and 0 included).
+    """
+    validate_rssi(reads, mask, "reads")
+    validate_gamma(gamma)
+    y = jnp.asarray(reads)
+    valid = _masked_weights(y.shape, mask)
+    a_b = jnp.broadcast_to(jnp.asarray(a), y.shape)
+    lw = _log_w_rssi(jnp.where(valid, y, 1.0), jnp.where(valid, a_b, 1.0), gamma.k, gamma.theta)
+    return jnp.sum(jnp.where(valid, lw, 0.0))
+
+
+# --------------------------------------------------------------------------------------
+# Phase ([A] §4.1.2) and phase weight ([A] §4.3.2)
+# --------------------------------------------------------------------------------------
+
+
+def wrap_phase(phi: Any) -> jax.Array:
+    """Wrap angles to ``[0, 2π)`` (rad): the reader's phase convention used here."""
+    r = wrap_angle(jnp.asarray(phi) - jnp.pi) + jnp.pi
+    # float rounding can give exactly 2π for inputs just below a multiple of 2π
+    return jnp.where(r >= _TWO_PI, r - _TWO_PI, r)
+
+
+def phase(distance: Any, wavelength: Any = DEFAULT_WAVELENGTH, theta_offset: Any = 0.0) -> jax.Array:
+    """Predicted phase ``φ = (−4πD/λ + θ_off) mod 2π ∈ [0, 2π)`` (rad), [A] §4.1.2.
+
+    Args:
+        distance: reader–tag distance ``D`` (m).
+        wavelength: ``λ`` (m), > 0; broadcasts (one λ per read for channel hopping).
+        theta_offset: constant offset ``θ_off`` (rad) of cables and tag.
+
+    A distance change of ``λ/2`` turns the phase once: the ambiguity of [A] §4.1.2.
+    """
+    check_positive("wavelength", wavelength)
+    check_finite("theta_offset", theta_offset)
+    raw = -4.0 * jnp.pi * jnp.asarray(distance) / jnp.asarray(wavelength) + jnp.asarray(theta_offset)
+    return wrap_phase(raw)
+
+
+def phase_distance(phi_meas: Any, phi_pred: Any, wavelength: Any = DEFAULT_WAVELENGTH) -> jax.Array:
+    """[A]'s distance metric ``Δ`` (m), §4.3.2: ``(λ/4π)·|wrap(φ_meas − φ_pred)| ∈ [0, λ/4]``.
+
+    The distance, on a circle of circumference ``λ/2``, between the radius of the
+    measured phase and the particle's (module docstring): symmetric across the
+    ``0/2π`` wrap, zero for a noiseless read.
+
+    Args:
+        phi_meas: measured phase (rad) in ``[0, 2π)``.
+        phi_pred: predicted phase (rad), e.g. :func:`phase` of the particle.
+        wavelength: ``λ`` (m), > 0, broadcastable (per read).
+    """
+    validate_phase(phi_meas)
+    check_finite("phi_pred", phi_pred)
+    check_positive("wavelength", wavelength)
+    diff = wrap_angle(jnp.asarray(phi_meas) - jnp.asarray(phi_pred))
+    return jnp.asarray(wavelength) / (4.0 * jnp.pi) * jnp.abs(diff)
+
+
+def log_w_phase(phi_meas: Any, phi_pred: Any, sigma: Any, wavelength: Any = DEFAULT_WAVELENGTH) -> jax.Array:
+    """``log W_PHASE = log N(Δ; 0, σ²)``, [A] §4.3.2, ``Δ`` from :func:`phase_distance`.
+
+        log W = −Δ²/(2σ²) − log σ − ½ log 2π
+
+    Args:
+        phi_meas: measured phase (rad) in ``[0, 2π)``.
+        phi_pred: predicted phase (rad).
+        sigma: ``σ_phase`` in **metres** (the unit of Δ); [A]: 0.05λ–0.2λ, default
+            choice ``DEFAULT_PHASE_SIGMA_FRACTION·λ``. ``σ_φ = 4πσ/λ`` rad.
+        wavelength: ``λ`` (m), > 0, broadcastable (per read).
+
+    Smooth in ``φ_pred``, ``σ`` and ``λ`` (the wrapped difference is squared,
+    so no ``|·|`` kink at Δ = 0).
+    """
+    validate_phase(phi_meas)
+    check_finite("phi_pred", phi_pred)
+    check_positive("sigma", sigma)
+    check_positive("wavelength", wavelength)
+    diff = wrap_angle(jnp.asarray(phi_meas) - jnp.asarray(phi_pred))
+    r = jnp.asarray(wavelength) / (4.0 * jnp.pi) * diff / jnp.asarray(sigma)
+    return -0.5 * r * r - jnp.log(jnp.asarray(sigma)) - 0.5 * math.log(_TWO_PI)
+
+
+# --------------------------------------------------------------------------------------
+# (k, θ) estimation from anchor reads ([A] §4.3.1, App. D, App. E)
+# --------------------------------------------------------------------------------------
+
+
+def closed_form_error_bound(k: Any) -> jax.Array:
+    """Upper bound on ``k̂_closed − k*`` (App. E truncation), given an estimate ``k``.
+
+    ``r(k) = 1/(2k) + 1/(12k²) − (ln k − ψ(k)) ∈ (0, 1/(120k⁴))`` (the
+    remainder of the asymptotic series of ψ); by the mean value theorem
+    ``0 ≤ k̂ − k* ≤ r(k*) / |g′(k̂)|`` with ``g(k) = 1/(2k) + 1/(12k²)``, bounded
+    here by ``(1/(120k⁴)) / (1/(2k²) + 1/(6k³))`` evaluated at ``k`` (use the
+    exact ML ``k*`` — the bound is then conservative, since ``k* ≤ k̂``).
+    """
+    k = jnp.asarray(k)
+    return (1.0 / (120.0 * k**4)) / (1.0 / (2.0 * k * k) + 1.0 / (6.0 * k**3))
+
+
+def _anchor_stats(reads, a, mask):
+    """``(ln ū, mean ln(u/ū) = −s, n_valid)`` of ``u_i = √(y_i/a_i)`` over the valid reads."""
+    y = jnp.asarray(reads)
+    valid = _masked_weights(y.shape, mask)
+    a_b = jnp.broadcast_to(jnp.asarray(a), y.shape)
+    log_u = 0.5 * (jnp.log(jnp.where(valid, y, 1.0)) - jnp.log(jnp.where(valid, a_b, 1.0)))
+    n = jnp.sum(valid)
+    w = jnp.where(valid, 1.0, 0.0) / jnp.maximum(n, 1).astype(log_u.dtype)
+    shift = jax.lax.stop_gradient(jnp.sum(w * log_u))  # geometric mean: u/exp(shift) ~ O(1)
+    v = jnp.where(valid, jnp.exp(log_u - shift), 0.0)
+    mean_v = jnp.sum(w * v)
+    log_ubar = shift + jnp.log(mean_v)
+    mean_log_ratio = jnp.sum(w * jnp.where(valid, log_u - log_ubar, 0.0))  # = −s
+    return log_ubar, mean_log_ratio, n
+
+
+def _closed_form(reads, a, mask):
+    log_ubar, mean_log_ratio, n = _anchor_stats(reads, a, mask)
+    s = -mean_log_ratio
+    ok = s > 0
+    s_safe = jnp.where(ok, s, 1.0)
+    k = jnp.where(ok, (3.0 + jnp.sqrt(9.0 + 12.0 * s_safe)) / (12.0 * s_safe), jnp.inf)
+    theta = jnp.where(ok, jnp.exp(log_ubar) / k, 0.0)
+    return GammaParams(k, theta), n
+
+
+def _check_anchor_args(reads, a, mask, need: int = 2):
+    y = reads
+    check_shape("reads", y, (None,))
+    n = np.shape(y)[0]
+    if np.ndim(a) not in (0, 1) or (np.ndim(a) == 1 and np.shape(a)[0] not in (1, n)):
+        raise ValueError(f"a must be a scalar or have shape ({n},), got {tuple(np.shape(a))}")
+    if mask is not None:
+        check_shape("mask", mask, (n,))
+        if is_concrete(mask) and np.asarray(mask).dtype != np.bool_:
+            raise ValueError(f"mask must be boolean (True = valid read), got dtype {np.asarray(mask).dtype}")
+    validate_rssi(y, mask, "reads")
+    av = _valid_values(jnp.broadcast_to(jnp.asarray(a), (n,)) if is_concrete(a) else a, mask)
+    if av is not None and (not np.all(np.isfinite(av)) or np.any(av <= 0)):
+        raise ValueError(f"a must be finite and > 0 for every valid read, got {av[~(np.isfinite(av) & (av > 0))][:5]}")
+    if need and is_concrete(mask):
+        n_valid = n if mask is None else int(np.sum(np.asarray(mask)))
+        if n_valid < need:
+            raise ValueError(
+                f"estimating (k, θ) needs at least {need} valid reads, got {n_valid}; use estimate_gamma, "
+                "which falls back to DEFAULT_GAMMA"
+            )
+
+
+def estimate_gamma_closed_form(reads: Any, a: Any, mask: Any = None) -> GammaParams:
+    """Closed-form ML of ``(k, θ)`` from anchor reads, [A] §4.3.1 / App. D with App. E.
+
+        u_i = √(y_i/a_i),  s = ln ū − mean(ln u_i),  k̂ = (3 + √(9 + 12s)) / (12s),  θ̂ = ū / k̂
+
+    Args:
+        reads: ``[N]`` RSSI of an anchor tag (W), > 0 where valid.
+        a: scalar or ``[N]``: the known ``a_i`` of each read (W), :func:`power_scale`
+            at the anchor's position.
+        mask: optional ``[N]`` bool, True for valid reads.
+
+    Returns ``GammaParams``; ``k = inf, θ = 0`` for a degenerate sample (all
+    ``u_i`` equal, ``s = 0``). Within :func:`closed_form_error_bound` of the
+    exact ML (overestimates ``k``). Raises ``ValueError`` (for concrete inputs)
+    with fewer than 2 valid reads.
+    """
+    _check_anchor_args(reads, a, mask)
+    params, _ = _closed_form_jit(jnp.asarray(reads), jnp.asarray(a), None if mask is None else jnp.asarray(mask))
+    return params
+
+
+_closed_form_jit = jax.jit(_closed_form)
+
+
+def _ml(reads, a, mask, init, steps):
+    log_ubar, mean_log_ratio, n = _anchor_stats(reads, a, mask)
+    # In v = u/ū (mean 1) with θ' = θ/ū the mean negative log-likelihood of the
+    # Gamma samples is (k−1)(−mean ln v) + 1/θ' + k ln θ' + ln Γ(k); the terms of
+    # App. D that do not depend on (k, θ) (the Jacobian 1/(2√(a y))) are dropped.
+    if init is None:
+        init, _ = _closed_form(reads, a, mask)
+    k0 = jnp.where(jnp.isfinite(init.k) & (init.k > 0), init.k, DEFAULT_GAMMA.k)
+    t0 = jnp.where(jnp.isfinite(init.theta) & (init.theta > 0), init.theta, jnp.exp(log_ubar) / k0)
+    p0 = jnp.stack([jnp.log(k0), jnp.log(t0) - log_ubar]).astype(log_ubar.dtype)
+
+    def loss(p):
+        k = jnp.exp(p[0])
+        return -(k - 1.0) * mean_log_ratio + jnp.exp(-p[1]) + k * p[1] + gammaln(k)
+
+    # zoom line search (optax's default): its curvature condition uses gradients, which
+    # keeps refining where float32 can no longer resolve loss decreases (backtracking
+    # stalls at ~1e-3 relative error in k; zoom reaches ~1e-5)
+    opt = optax.lbfgs(linesearch=optax.scale_by_zoom_linesearch(max_linesearch_steps=20))
+
+    def body(carry, _):
+        p, st = carry
+        val, g = jax.value_and_grad(loss)(p)
+        upd, st = opt.update(g, st, p, value=val, grad=g, value_fn=loss)
+        return (optax.apply_updates(p, upd), st), None
+
+    (p, _), _ = jax.lax.scan(body, (p0, opt.init(p0)), None, length=steps)
+    return GammaParams(jnp.exp(p[0]), jnp.exp(p[1] + log_ubar)), n
+
+
+_ml_jit = jax.jit(_ml, static_argnames=("steps",))
+
+
+def estimate_gamma_ml(
+    reads: Any, a: Any, mask: Any = None, init: GammaParams | None = None, steps: int = 30
+) -> GammaParams:
+    """Exact ML of ``(k, θ)`` from anchor reads ([A] App. D) by optax L-BFGS.
+
+    Maximises ``ℓ(k, θ)`` of [A] App. D over ``(log k, log θ)`` (positivity by
+    construction) with L-BFGS and a zoom line search, ``steps``
+    iterations from ``init`` (default: the closed form, already within
+    :func:`closed_form_error_bound`). Internally the samples ``u_i = √(y_i/a_i)``
+    are divided by their mean, which makes the problem scale free. At the
+    optimum ``θ̂ k̂ = ū`` and ``ln k̂ − ψ(k̂) = s`` (App. D's stationarity
+    equations). Arguments as :func:`estimate_gamma_closed_form`.
+
+    Precision: in float64 the relative error in ``k`` is ~1e-8; in float32 it is
+    ~1e-5–1e-4 (the likelihood is flat along ``θk = ū``), far below the
+    sampling standard deviation ``√(k / (N(kψ′(k) − 1)))`` of ``k̂`` for any
+    realistic ``N`` (0.04 for ``k = 3``, ``N = 10⁴``).
+    """
+    _check_anchor_args(reads, a, mask)
+    steps = check_positive_int("steps", steps)
+    if init is not None:
+        validate_gamma(init)
+        init = GammaParams(*(jnp.asarray(x) for x in init))
+    params, _ = _ml_jit(jnp.asarray(reads), jnp.asarray(a), None if mask is None else jnp.asarray(mask), init, steps)
+    return params
+
+
+@jax.jit
+def _fallback(est, n, default, min_reads):
+    ok = (n >= min_reads) & jnp.isfinite(est.k) & jnp.isfinite(est.theta) & (est.k > 0) & (est.theta > 0)
+    k = jnp.where(ok, est.k, jnp.asarray(default.k, est.k.dtype))
+    th = jnp.where(ok, est.theta, jnp.asarray(default.theta, est.theta.dtype))
+    return GammaFit(GammaParams(k, th), n, ~ok)
+
+
+def estimate_gamma(
+    reads: Any,
+    a: Any,
+    mask: Any = None,
+    *,
+    min_reads: int = DEFAULT_MIN_READS,
+    method: str = "closed_form",
+    default: GammaParams = DEFAULT_GAMMA,
+    steps: int = 30,
+) -> GammaFit:
+    """``(k, θ)`` from anchor reads, or ``default`` until ``min_reads`` valid reads exist ([A] §4.3.1).
+
+    ``method`` is ``"closed_form"`` (App. D–E, :func:`estimate_gamma_closed_form`)
+    or ``"ml"`` (:func:`estimate_gamma_ml`). Also falls back for a degenerate
+    sample (identical reads, ``s = 0``). Shapes do not depend on the number of
+    valid reads: ``reads``/``mask`` are fixed ``[N]`` buffers, jit-friendly.
+
+    Returns:
+        :class:`GammaFit` ``(params, n_valid, used_default)``.
+    """
+    _check_anchor_args(reads, a, mask, need=0)
+    min_reads = check_positive_int("min_reads", min_reads)
+    if min_reads < 2:
+        raise ValueError(f"min_reads must be ≥ 2 (a single read cannot give a shape k), got {min_reads}")
+    check_choice("method", method, {"closed_form", "ml"})
+    validate_gamma(default)
+    steps = check_positive_int("steps", steps)
+    default = GammaParams(*(jnp.asarray(x) for x in default))
+    m = None if mask is None else jnp.asarray(mask)
+    # the estimators' own jitted kernels are reused (no extra compilation per method)
+    if method == "closed_form":
+        est, n = _closed_form_jit(jnp.asarray(reads), jnp.asarray(a), m)
+    else:
+        est, n = _ml_jit(jnp.asarray(reads), jnp.asarray(a), m, None, steps)
+    return _fallback(est, n, default, min_reads)

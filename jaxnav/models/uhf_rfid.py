@@ -176,6 +176,8 @@ __all__ = [
     "DEFAULT_GAMMA",
     "DEFAULT_MIN_READS",
     "GammaFit",
+    "UHFReads",
+    "validate_reads",
     "dbm_to_watt",
     "watt_to_dbm",
     "db_to_linear",
@@ -283,6 +285,25 @@ class GammaParams(NamedTuple):
 
 DEFAULT_GAMMA = GammaParams(k=2.0, theta=0.5)
 """Used until enough anchor reads exist: unit mean fading power kθ = 1 (our choice)."""
+
+class UHFReads(NamedTuple):
+    """Reads of one tag in fixed slots: ``J`` per time step (a pytree; leading axes ``[..., T]`` allowed).
+
+    Attributes:
+        reader: ``[..., J, 4]`` reader pose ``(x, y, z, ψ)`` of each read (m, m, m, rad).
+        rssi: ``[..., J]`` received power (W, > 0 where valid).
+        phase: ``[..., J]`` phase (rad, in ``[0, 2π)``; see :func:`wrap_phase`).
+        wavelength: ``[..., J]`` carrier wavelength of the read's channel (m).
+        mask: ``[..., J]`` bool: the slot holds a read. Missing reads are masked,
+            never zeros; masked slots may hold any finite value.
+    """
+
+    reader: Any
+    rssi: Any
+    phase: Any
+    wavelength: Any
+    mask: Any
+
 
 DEFAULT_MIN_READS = 30
 """Valid anchor reads needed before (k, θ) is estimated instead of :data:`DEFAULT_GAMMA`."""
@@ -403,6 +424,36 @@ def validate_phase(phi: Any, name: str = "phi_meas") -> None:
             f"{' (with NaN/inf)' if not np.all(np.isfinite(v)) else ''}; readers reporting [-π, π) "
             "need wrap_phase"
         )
+
+
+def validate_reads(reads: UHFReads, name: str = "reads") -> None:
+    """Host-side checks of :class:`UHFReads`: consistent shapes, a bool mask, and on the valid
+    slots a positive RSSI (W), a phase in ``[0, 2π)`` and a positive wavelength (value checks
+    are skipped for tracers)."""
+    if not isinstance(reads, UHFReads):
+        raise ValueError(f"{name} must be a UHFReads, got {type(reads).__name__}")
+    shape = np.shape(reads.mask)
+    if len(shape) < 1:
+        raise ValueError(f"{name}.mask must have a read-slot axis, got shape {shape}")
+    for field in ("rssi", "phase", "wavelength"):
+        if np.shape(getattr(reads, field)) != shape:
+            raise ValueError(f"{name}.{field} must have the mask's shape {shape}, got {np.shape(getattr(reads, field))}")
+    if np.shape(reads.reader) != shape + (4,):
+        raise ValueError(f"{name}.reader must have shape {shape + (4,)}, got {np.shape(reads.reader)}")
+    if np.result_type(getattr(reads.mask, "dtype", np.asarray(reads.mask).dtype)) != np.bool_:
+        raise ValueError(f"{name}.mask must be boolean, got {np.result_type(reads.mask)}")
+    if not is_concrete(reads):
+        return
+    m = np.asarray(reads.mask)
+    for field in ("reader", "rssi", "phase", "wavelength"):
+        if not np.all(np.isfinite(np.asarray(getattr(reads, field)))):
+            raise ValueError(f"{name}.{field} must be finite everywhere (masked slots too: fill them with any finite value)")
+    if m.any():
+        validate_rssi(np.asarray(reads.rssi)[m], name=f"{name}.rssi")
+        validate_phase(np.asarray(reads.phase)[m], name=f"{name}.phase")
+        check_positive(f"{name}.wavelength", np.asarray(reads.wavelength)[m])
+        if np.any(np.asarray(reads.reader)[..., 2][m] < 0):
+            raise ValueError(f"{name}.reader z (the reader's height above the ground z = 0) must be ≥ 0")
 
 
 def _check_last_dim(name: str, x: Any, n: int) -> None:

@@ -1,0 +1,368 @@
+"""Localization of a static UHF-RFID tag from RSSI and phase reads, [A] Alg. 6 (§4.3).
+
+Overview
+--------
+A reader on a robot whose path is known reads a tag that does not move. Each
+read gives an RSSI ``y`` (W) and a phase ``φ`` (rad) at a known reader pose
+(:class:`jaxnav.models.uhf_rfid.UHFReads`). The particles are hypotheses
+``X = (x, y, z, θ_off)`` of the tag's position (m) and of the constant phase
+offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
+
+* lines 4–7, :func:`init`: ``M`` particles uniform in the search box, offset
+  uniform on the circle, equal weights;
+* lines 9–16, :func:`step`: every valid read ``j`` of the step multiplies the
+  weight by ``W_RSSI`` (line 12, the scaled squared-Gamma density of [A]
+  §4.3.1, :func:`jaxnav.models.uhf_rfid.log_w_rssi`, with ``a`` from the
+  two-ray model at the particle, :func:`~jaxnav.models.uhf_rfid.power_scale`)
+  and by ``W_PHASE`` (line 13, ``N(Δ; 0, σ²)`` on the distance metric of
+  [A] §4.3.2, :func:`~jaxnav.models.uhf_rfid.log_w_phase`), in log form.
+  ``config.weighting`` keeps one of them (``"rssi"``, ``"phase"``) or both
+  (``"combined"``): the three curves of [A] Figs. 5.5–5.6;
+* lines 17–19: normalise; ESS; the estimate is the weighted mean (the
+  offset on the circle), taken before resampling;
+* lines 20–26: resample only when ``ESS < ess_threshold · M``, and then
+  redraw the set from the Gaussian fitted to the resampled particles
+  ([A] §4.3.3: duplicates of a static target would stay duplicates forever;
+  :func:`jaxnav.core.resampling.conditional_resample` with ``refresh``).
+  [A] asks for a threshold "significantly lower" than ``M/2`` because the
+  Gaussian is unimodal while the early posterior is multimodal (a phase read
+  is consistent with spheres ``λ/2`` apart); ours is 0.1 (our choice). The
+  redrawn positions are clipped into the box (the tag is in it by
+  assumption, and a position below the ground has no two-ray model).
+
+2D ([A] §5.2.2): ``config.dims = 2`` keeps ``z`` at ``params.tag_height`` (a
+known height) and searches ``(x, y, θ_off)`` only; the particles keep four
+columns so that every shape is the same.
+
+Several tags: :func:`run_tags` ``vmap``s :func:`run` over a leading tag axis
+(``[A]``: "localization of more than one tags simply requires the execution
+inside a loop"; here it is one vectorised call).
+
+Interface (shared by every jaxnav filter)::
+
+    state = rfid_tag.init(key, config, params)
+    state, info = rfid_tag.step(key, state, config, params, reads)        # reads: UHFReads [J]
+    final, trace = rfid_tag.run(key, config, params, reads_T, state)      # reads: UHFReads [T, J]
+
+A static tag has no motion model, so there is no control argument. Step
+``t`` of :func:`run` uses ``fold_in(key, t)``. A step without a valid read
+changes nothing (weights, particles) but the estimate is reported. A step
+where every particle has zero likelihood resets the weights and sets
+``info.degenerate``, never NaN.
+
+Units: m, rad, W. The Gamma parameters ``(k, θ)`` come from an anchor tag
+(:func:`jaxnav.models.uhf_rfid.estimate_gamma`) or the defaults.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import resampling, weights
+from jaxnav.core.validation import check_choice, check_finite, check_fraction, check_positive, check_positive_int, check_shape
+from jaxnav.models import uhf_rfid as U
+
+__all__ = [
+    "WEIGHTINGS",
+    "RFIDTagConfig",
+    "RFIDTagParams",
+    "RFIDTagState",
+    "RFIDTagInfo",
+    "default_params",
+    "init",
+    "step",
+    "run",
+    "run_tags",
+    "log_likelihoods",
+]
+
+WEIGHTINGS = ("combined", "rssi", "phase")
+"""Which weights Alg. 6 lines 12–14 multiply in: both (the proposal of [A]), RSSI only, phase only."""
+
+_OFFSET = 3  # column of θ_off, an angle in [−π, π)
+
+
+@dataclass(frozen=True)
+class RFIDTagConfig:
+    """Static configuration (hashable; a static argument of ``jit``).
+
+    Attributes:
+        num_particles: M.
+        dims: 3 (search x, y, z) or 2 (z fixed at ``params.tag_height``).
+        weighting: one of :data:`WEIGHTINGS`.
+        ess_threshold: resample when ESS < ``ess_threshold · M``, in (0, 1].
+            [A] §4.3.3: well below the usual 0.5; default 0.1 (ours).
+        refresh: redraw the resampled set from its Gaussian ([A] §4.3.3,
+            Alg. 6 line 22); False keeps plain systematic resampling.
+        antenna_softness: optional logistic relaxation (rad) of the antenna
+            pattern's steps (:func:`jaxnav.models.uhf_rfid.antenna_gain`), for
+            gradients with respect to positions; None is [A]'s stepped model.
+    """
+
+    num_particles: int = 2000
+    dims: int = 3
+    weighting: str = "combined"
+    ess_threshold: float = 0.1
+    refresh: bool = True
+    antenna_softness: float | None = None
+
+    def __post_init__(self) -> None:
+        check_positive_int("num_particles", self.num_particles)
+        if self.dims not in (2, 3):
+            raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
+        check_choice("weighting", self.weighting, WEIGHTINGS)
+        check_fraction("ess_threshold", self.ess_threshold)
+        if self.antenna_softness is not None:
+            check_positive("antenna_softness", self.antenna_softness)
+
+
+class RFIDTagParams(NamedTuple):
+    """Differentiable parameters (use :func:`default_params`).
+
+    Attributes:
+        channel: :class:`~jaxnav.models.uhf_rfid.ChannelParams` (power model and antenna).
+        gamma: :class:`~jaxnav.models.uhf_rfid.GammaParams` ``(k, θ)`` of ``|h|²``.
+        phase_sigma: ``σ_phase`` (m) of ``W_PHASE``; [A]: 0.05λ–0.2λ.
+        box_lo, box_hi: ``[3]`` corners of the search box (m).
+        tag_height: the known tag height ``z`` (m) when ``dims = 2``.
+    """
+
+    channel: U.ChannelParams
+    gamma: U.GammaParams
+    phase_sigma: jax.Array
+    box_lo: jax.Array
+    box_hi: jax.Array
+    tag_height: jax.Array
+
+
+class RFIDTagState(NamedTuple):
+    """``particles [M, 4]`` = ``(x, y, z, θ_off)`` (m, m, m, rad in [−π, π)); ``log_weights [M]`` normalised."""
+
+    particles: jax.Array
+    log_weights: jax.Array
+
+
+class RFIDTagInfo(NamedTuple):
+    """Per-step diagnostics (stacked over time by :func:`run`).
+
+    Attributes:
+        estimate: ``[4]`` weighted mean ``(x, y, z, θ_off)`` ([A] Alg. 6 line 19; offset on the circle).
+        ess: effective sample size after the update, before resampling.
+        resampled: bool.
+        log_likelihood: log of the weighted mean likelihood of the step's reads (0 without reads).
+        degenerate: bool, every particle had zero likelihood; the weights were reset.
+        num_reads: int32, valid reads used.
+    """
+
+    estimate: jax.Array
+    ess: jax.Array
+    resampled: jax.Array
+    log_likelihood: jax.Array
+    degenerate: jax.Array
+    num_reads: jax.Array
+
+
+def default_params(
+    box_lo: Any = (0.0, 0.0, 0.0),
+    box_hi: Any = (2.0, 3.0, 2.0),
+    channel: U.ChannelParams = U.DEFAULT_CHANNEL,
+    gamma: U.GammaParams = U.DEFAULT_GAMMA,
+    phase_sigma: Any = None,
+    tag_height: Any = 1.0,
+) -> RFIDTagParams:
+    """Parameters with [A] §5.2's 2 × 3 × 2 m search box by default.
+
+    ``phase_sigma`` defaults to ``0.1 λ`` (:data:`~jaxnav.models.uhf_rfid.DEFAULT_PHASE_SIGMA_FRACTION`
+    of the channel's wavelength); ``tag_height`` (m) is used only in 2D. Validated.
+    """
+    if phase_sigma is None:
+        phase_sigma = U.DEFAULT_PHASE_SIGMA_FRACTION * float(np.asarray(channel.wavelength))
+    p = RFIDTagParams(
+        channel=U.ChannelParams(*(jnp.asarray(c, jnp.float32) for c in channel[:4]),
+                                U.AntennaParams(*(jnp.asarray(c, jnp.float32) for c in channel.antenna))),
+        gamma=U.GammaParams(jnp.asarray(gamma.k, jnp.float32), jnp.asarray(gamma.theta, jnp.float32)),
+        phase_sigma=jnp.asarray(phase_sigma, jnp.float32),
+        box_lo=jnp.asarray(box_lo, jnp.float32),
+        box_hi=jnp.asarray(box_hi, jnp.float32),
+        tag_height=jnp.asarray(tag_height, jnp.float32),
+    )
+    _validate_params(p)
+    return p
+
+
+def _validate_params(params: RFIDTagParams) -> None:
+    if not isinstance(params, RFIDTagParams):
+        raise ValueError(f"params must be an RFIDTagParams, got {type(params).__name__}")
+    U.validate_channel(params.channel)
+    U.validate_gamma(params.gamma)
+    check_shape("params.phase_sigma", params.phase_sigma, ())
+    check_positive("params.phase_sigma (σ_phase, m)", params.phase_sigma)
+    check_shape("params.box_lo", params.box_lo, (3,))
+    check_shape("params.box_hi", params.box_hi, (3,))
+    check_finite("params.box_lo", params.box_lo)
+    check_finite("params.box_hi", params.box_hi)
+    check_shape("params.tag_height", params.tag_height, ())
+    try:
+        lo, hi = np.asarray(params.box_lo), np.asarray(params.box_hi)
+    except jax.errors.TracerArrayConversionError:
+        return
+    if not np.all(hi > lo):
+        raise ValueError(f"the search box must have a positive volume: box_lo {lo.tolist()} < box_hi {hi.tolist()} "
+                         "on every axis")
+    if lo[2] < 0:
+        raise ValueError(f"the search box must lie above the ground z = 0 (box_lo z = {lo[2]:g})")
+
+
+def init(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams) -> RFIDTagState:
+    """[A] Alg. 6 lines 4–7: ``M`` particles uniform in the box, ``θ_off`` uniform, equal weights."""
+    if not isinstance(config, RFIDTagConfig):
+        raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
+    _validate_params(params)
+    return _init(key, config, params)
+
+
+def _init(key, config, params):
+    m = config.num_particles
+    k_pos, k_off = jax.random.split(key)
+    xyz = params.box_lo + jax.random.uniform(k_pos, (m, 3)) * (params.box_hi - params.box_lo)
+    if config.dims == 2:
+        xyz = xyz.at[:, 2].set(params.tag_height)
+    off = jax.random.uniform(k_off, (m, 1), minval=-math.pi, maxval=math.pi)
+    return RFIDTagState(jnp.concatenate([xyz, off], axis=-1), jnp.full((m,), -math.log(m), jnp.float32))
+
+
+def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax.Array, reads: U.UHFReads) -> jax.Array:
+    """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14."""
+    xyz = particles[:, None, :3]  # [M, 1, 3] against J reads
+    lam = reads.wavelength[None, :]
+    total = jnp.zeros(particles.shape[:1] + reads.mask.shape, particles.dtype)
+    if config.weighting in ("combined", "rssi"):
+        a = U._power_scale(reads.reader[None, :, :], xyz, params.channel, config.antenna_softness, lam)  # [M, J]
+        y = jnp.where(reads.mask, reads.rssi, 1.0)[None, :]
+        total = total + U._log_w_rssi(y, a, params.gamma.k, params.gamma.theta)
+    if config.weighting in ("combined", "phase"):
+        d = U._norm(xyz - reads.reader[None, :, :3])
+        pred = -4.0 * jnp.pi * d / lam + particles[:, None, _OFFSET]
+        diff = weights.wrap_angle(reads.phase[None, :] - pred)
+        r = lam / (4.0 * jnp.pi) * diff / params.phase_sigma  # Δ/σ, [A] §4.3.2
+        total = total + (-0.5 * r * r - jnp.log(params.phase_sigma) - 0.5 * math.log(2.0 * math.pi))
+    return jnp.sum(jnp.where(reads.mask[None, :], total, 0.0), axis=-1)
+
+
+def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
+    ll = log_likelihoods(config, params, state.particles, reads)
+    norm = weights.normalize(state.log_weights + ll)
+    probs = jnp.exp(norm.log_weights)
+    estimate = weights.mean_from_probabilities(state.particles, probs, (_OFFSET,))
+    ess = weights.ess_from_probabilities(probs)
+    any_read = jnp.any(reads.mask)
+    threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
+    res = resampling.conditional_resample(
+        key, state.particles, norm.log_weights, threshold=threshold, scheme="systematic",
+        refresh=config.refresh, angle_dims=(_OFFSET,), normalized=True,
+    )
+    xyz = jnp.clip(res.particles[:, :3], params.box_lo, params.box_hi)
+    if config.dims == 2:
+        xyz = xyz.at[:, 2].set(params.tag_height)
+    particles = jnp.concatenate([xyz, res.particles[:, 3:]], axis=-1)
+    info = RFIDTagInfo(estimate, ess, res.resampled, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
+                       jnp.sum(reads.mask, dtype=jnp.int32))
+    return RFIDTagState(particles, res.log_weights), info
+
+
+_step_jit = jax.jit(_step, static_argnames=("config",))
+
+
+def _as_reads(reads: U.UHFReads) -> U.UHFReads:
+    return U.UHFReads(*(jnp.asarray(x, jnp.float32) for x in reads[:4]), jnp.asarray(reads.mask, bool))
+
+
+def _validate_state(config: RFIDTagConfig, state: RFIDTagState) -> None:
+    if not isinstance(state, RFIDTagState):
+        raise ValueError(f"state must be an RFIDTagState, got {type(state).__name__}")
+    check_shape("state.particles", state.particles, (config.num_particles, 4))
+    check_shape("state.log_weights", state.log_weights, (config.num_particles,))
+
+
+def _check(config, params, state, reads, lead: int):
+    if not isinstance(config, RFIDTagConfig):
+        raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
+    _validate_params(params)
+    _validate_state(config, state)
+    U.validate_reads(reads)
+    if len(np.shape(reads.mask)) != lead + 1:
+        axes = ("T, " * lead) + "J"
+        raise ValueError(f"reads must have shape [{axes}], got mask shape {np.shape(reads.mask)}")
+
+
+def step(key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams,
+         reads: U.UHFReads) -> tuple[RFIDTagState, RFIDTagInfo]:
+    """One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (mask shape ``[J]``).
+
+    Jitted (``config`` static); inputs are validated on the host first.
+    """
+    _check(config, params, state, reads, 0)
+    return _step_jit(key, state, config, params, _as_reads(reads))
+
+
+def _run(key, config, params, reads, state):
+    def body(carry, inputs):
+        t, r = inputs
+        return _step(jax.random.fold_in(key, t), carry, config, params, r)
+
+    return jax.lax.scan(body, state, (jnp.arange(reads.mask.shape[0]), reads))
+
+
+_run_jit = jax.jit(_run, static_argnames=("config",))
+
+
+def run(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads,
+        initial_state: RFIDTagState) -> tuple[RFIDTagState, RFIDTagInfo]:
+    """[A] Alg. 6 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
+
+    Args:
+        reads: :class:`~jaxnav.models.uhf_rfid.UHFReads` with mask shape ``[T, J]``.
+        initial_state: from :func:`init`.
+
+    Returns:
+        ``(final_state, trace)``; ``trace.estimate`` is ``[T, 4]``.
+    """
+    _check(config, params, initial_state, reads, 1)
+    return _run_jit(key, config, params, _as_reads(reads), initial_state)
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _run_tags_jit(key, config, params, reads, states):
+    g = reads.mask.shape[0]
+    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
+    return jax.vmap(_run, in_axes=(0, None, None, 0, 0))(keys, config, params, reads, states)
+
+
+def run_tags(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads,
+             initial_states: RFIDTagState | None = None) -> tuple[RFIDTagState, RFIDTagInfo]:
+    """:func:`run` for ``G`` tags at once (``vmap``, no Python loop); reads have mask shape ``[G, T, J]``.
+
+    Tag ``g`` runs with key ``key_g = fold_in(key, g)``; when ``initial_states`` is None
+    its particles start from :func:`init` with ``fold_in(key_g, 2**31 − 1)``. All tags
+    share ``params`` (one anchor's ``(k, θ)``). Returns states and traces with a leading
+    ``G`` axis.
+    """
+    if not isinstance(config, RFIDTagConfig):
+        raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
+    _validate_params(params)
+    U.validate_reads(reads)
+    if len(np.shape(reads.mask)) != 3:
+        raise ValueError(f"reads must have shape [G, T, J], got mask shape {np.shape(reads.mask)}")
+    g = np.shape(reads.mask)[0]
+    if initial_states is None:
+        keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 2**31 - 1))(jnp.arange(g))
+        initial_states = jax.vmap(lambda k: _init(k, config, params))(keys)
+    check_shape("initial_states.particles", initial_states.particles, (g, config.num_particles, 4))
+    return _run_tags_jit(key, config, params, _as_reads(reads), initial_states)

@@ -240,20 +240,12 @@ def _init(key, config, params):
 
 def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax.Array, reads: U.UHFReads) -> jax.Array:
     """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14."""
-    xyz = particles[:, None, :3]  # [M, 1, 3] against J reads
-    lam = reads.wavelength[None, :]
-    total = jnp.zeros(particles.shape[:1] + reads.mask.shape, particles.dtype)
-    if config.weighting in ("combined", "rssi"):
-        a = U._power_scale(reads.reader[None, :, :], xyz, params.channel, config.antenna_softness, lam)  # [M, J]
-        y = jnp.where(reads.mask, reads.rssi, 1.0)[None, :]
-        total = total + U._log_w_rssi(y, a, params.gamma.k, params.gamma.theta)
-    if config.weighting in ("combined", "phase"):
-        d = U._norm(xyz - reads.reader[None, :, :3])
-        pred = -4.0 * jnp.pi * d / lam + particles[:, None, _OFFSET]
-        diff = weights.wrap_angle(reads.phase[None, :] - pred)
-        r = lam / (4.0 * jnp.pi) * diff / params.phase_sigma  # Δ/σ, [A] §4.3.2
-        total = total + (-0.5 * r * r - jnp.log(params.phase_sigma) - 0.5 * math.log(2.0 * math.pi))
-    return jnp.sum(jnp.where(reads.mask[None, :], total, 0.0), axis=-1)
+    return U.read_log_likelihood(
+        reads.reader[None, :, :], particles[:, None, :3], particles[:, None, _OFFSET], reads.rssi[None, :],
+        reads.phase[None, :], reads.wavelength[None, :], reads.mask[None, :], params.channel, params.gamma,
+        params.phase_sigma, use_rssi=config.weighting in ("combined", "rssi"),
+        use_phase=config.weighting in ("combined", "phase"), softness=config.antenna_softness,
+    )
 
 
 def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):

@@ -178,6 +178,7 @@ __all__ = [
     "GammaFit",
     "UHFReads",
     "validate_reads",
+    "read_log_likelihood",
     "dbm_to_watt",
     "watt_to_dbm",
     "db_to_linear",
@@ -781,6 +782,43 @@ def log_w_phase(phi_meas: Any, phi_pred: Any, sigma: Any, wavelength: Any = DEFA
     diff = wrap_angle(jnp.asarray(phi_meas) - jnp.asarray(phi_pred))
     r = jnp.asarray(wavelength) / (4.0 * jnp.pi) * diff / jnp.asarray(sigma)
     return -0.5 * r * r - jnp.log(jnp.asarray(sigma)) - 0.5 * math.log(_TWO_PI)
+
+
+def read_log_likelihood(
+    reader_pose: jax.Array,
+    tag_xyz: jax.Array,
+    theta_offset: jax.Array,
+    rssi: jax.Array,
+    phi: jax.Array,
+    wavelength: jax.Array,
+    mask: jax.Array,
+    channel: ChannelParams,
+    gamma: GammaParams,
+    phase_sigma: jax.Array,
+    use_rssi: bool = True,
+    use_phase: bool = True,
+    softness: Any = None,
+) -> jax.Array:
+    """``Σ_j log W_RSSI + log W_PHASE`` over the last (read) axis, valid reads only ([A] Alg. 6 lines 11–14, Alg. 8 lines 14–18).
+
+    Jit-side (no host checks; validate the reads with :func:`validate_reads`).
+    Everything broadcasts to ``[..., J]``: ``reader_pose [..., J, 4]``,
+    ``tag_xyz [..., J, 3]``, ``theta_offset``, ``rssi``, ``phi``,
+    ``wavelength``, ``mask`` ``[..., J]``. A particle filter over tags
+    broadcasts the tag (``[M, 1, 3]``) against fixed readers (``[1, J, 4]``);
+    one over the robot broadcasts the reader against fixed anchors. The
+    static flags ``use_rssi`` / ``use_phase`` pick the weighting. Returns ``[...]``.
+    """
+    total = jnp.zeros(jnp.broadcast_shapes(jnp.shape(mask), jnp.shape(reader_pose)[:-1], jnp.shape(tag_xyz)[:-1]))
+    if use_rssi:
+        a = _power_scale(reader_pose, tag_xyz, channel, softness, wavelength)
+        total = total + _log_w_rssi(jnp.where(mask, rssi, 1.0), a, gamma.k, gamma.theta)
+    if use_phase:
+        d = _norm(tag_xyz - reader_pose[..., :3])
+        pred = -4.0 * jnp.pi * d / wavelength + theta_offset
+        r = wavelength / (4.0 * jnp.pi) * wrap_angle(phi - pred) / phase_sigma  # Δ/σ, [A] §4.3.2
+        total = total + (-0.5 * r * r - jnp.log(phase_sigma) - 0.5 * math.log(_TWO_PI))
+    return jnp.sum(jnp.where(mask, total, 0.0), axis=-1)
 
 
 # --------------------------------------------------------------------------------------

@@ -1,0 +1,352 @@
+"""Robot localization from UHF-RFID reads of anchor tags and odometry, [A] App. F Alg. 8.
+
+Overview
+--------
+The robot carries the reader; ``G`` anchor tags sit at known positions. The
+particles are ``X = (x, y, z, φ, θ_1 … θ_G)``: the reader's position (m), the
+yaw of its antenna (rad) and the unknown phase offset of each anchor (rad).
+[A] Alg. 8, with where each line lives:
+
+* lines 4–8, :func:`init`: positions uniform in the search box, ``φ``
+  uniform in ``[φ_min, φ_max]``, every ``θ_i`` uniform on the circle;
+* line 13, the motion: ``X_t ~ N(X_{t−1} + dX_t, σ_odometry²)`` on
+  ``(x, y, z, φ)``. The offsets are constants, but a particle filter that
+  never moves them keeps only the offset combinations its first ``M``
+  draws happened to hold: with ``G`` offsets and a phase noise of ~1 rad,
+  few initial particles match all of them, and the filter settled 0.2 m
+  off in our runs (4 anchors, 4,000 particles). So each offset takes a small
+  random walk, ``params.offset_sd`` rad per step (roughening, Gordon et al.
+  1993; ours, not in [A]). [A] adds
+  ``dX_t`` as it is, a world-frame increment (``config.odometry_frame =
+  "world"``, the default); with ``"body"`` the ``(dx, dy)`` of a wheel
+  odometry, measured in the robot frame, are turned by each particle's own
+  ``φ`` first (our option, for robots whose heading is unknown);
+* lines 14–18: every anchor ``j`` read this step weights the particle by
+  ``W_RSSI`` (the reader at the particle's pose, the anchor at ``g_j``) and
+  ``W_PHASE`` (with the particle's ``θ_j``), in log form
+  (:func:`jaxnav.models.uhf_rfid.read_log_likelihood`; ``config.weighting``
+  keeps one or both);
+* lines 20–25: normalise; resample (systematic, [A] App. B) when
+  ``ESS < ess_threshold · M``. Unlike Alg. 6 there is no Gaussian refresh:
+  the motion noise keeps the particles apart;
+* line 26: the estimate, the weighted mean (``φ`` and the offsets on the
+  circle). [A] takes it after resampling; we take it before (resampling adds
+  noise and no information), as every jaxnav filter does.
+
+Observations: :class:`AnchorReads`, one slot per anchor (``K ≤ G`` valid
+reads per step, [A] line 10). The reader pose is the state, so unlike
+:class:`~jaxnav.models.uhf_rfid.UHFReads` a read carries no pose.
+
+Interface::
+
+    state = rfid_anchor.init(key, config, params)
+    state, info = rfid_anchor.step(key, state, config, params, control, reads)
+    final, trace = rfid_anchor.run(key, config, params, controls, reads, state)
+
+``control`` is ``dX_t = (dx, dy, dz, dφ)`` (m, m, m, rad). [A] runs no
+experiment with Alg. 8 ("no further analysis or experimental results are
+conducted, due to its greater number of parameters which need tuning"); the
+tests here check it on simulated reads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import resampling, weights
+from jaxnav.core.batch import scan_filter
+from jaxnav.core.validation import (
+    check_choice,
+    check_finite,
+    check_fraction,
+    check_nonnegative,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    is_concrete,
+)
+from jaxnav.localization.rfid_tag import WEIGHTINGS
+from jaxnav.models import uhf_rfid as U
+
+__all__ = [
+    "AnchorReads",
+    "RFIDAnchorConfig",
+    "RFIDAnchorParams",
+    "RFIDAnchorState",
+    "RFIDAnchorInfo",
+    "default_params",
+    "init",
+    "step",
+    "run",
+]
+
+FRAMES = ("world", "body")
+
+
+class AnchorReads(NamedTuple):
+    """One step's reads, slot ``j`` = anchor ``j`` (leading ``[T]`` allowed).
+
+    Attributes:
+        rssi: ``[..., G]`` received power (W, > 0 where valid).
+        phase: ``[..., G]`` phase (rad, in ``[0, 2π)``).
+        wavelength: ``[..., G]`` channel wavelength (m).
+        mask: ``[..., G]`` bool: anchor ``j`` was read.
+    """
+
+    rssi: Any
+    phase: Any
+    wavelength: Any
+    mask: Any
+
+
+@dataclass(frozen=True)
+class RFIDAnchorConfig:
+    """Static configuration.
+
+    Attributes:
+        num_particles: M.
+        weighting: one of :data:`jaxnav.localization.rfid_tag.WEIGHTINGS`.
+        ess_threshold: resample when ESS < ``ess_threshold · M``, in (0, 1] (0.5, the common value).
+        odometry_frame: ``"world"`` ([A]: ``X + dX``) or ``"body"`` (``(dx, dy)``
+            turned by each particle's ``φ``).
+        antenna_softness: optional relaxation (rad) of the antenna steps.
+    """
+
+    num_particles: int = 2000
+    weighting: str = "combined"
+    ess_threshold: float = 0.5
+    odometry_frame: str = "world"
+    antenna_softness: float | None = None
+
+    def __post_init__(self) -> None:
+        check_positive_int("num_particles", self.num_particles)
+        check_choice("weighting", self.weighting, WEIGHTINGS)
+        check_fraction("ess_threshold", self.ess_threshold)
+        check_choice("odometry_frame", self.odometry_frame, FRAMES)
+        if self.antenna_softness is not None:
+            check_positive("antenna_softness", self.antenna_softness)
+
+
+class RFIDAnchorParams(NamedTuple):
+    """Differentiable parameters (use :func:`default_params`).
+
+    Attributes:
+        channel, gamma, phase_sigma: the read models, as in :mod:`jaxnav.localization.rfid_tag`.
+        anchors: ``[G, 3]`` anchor positions (m).
+        odometry_sd: ``[4]`` sd of the motion noise on ``(x, y, z, φ)`` per step (m, m, m, rad).
+        offset_sd: sd (rad) of a random walk on the anchors' phase offsets per step
+            (roughening, ours: not in [A]; module docstring).
+        box_lo, box_hi: ``[3]`` corners of the initial search box (m).
+        heading_range: ``[2]`` ``(φ_min, φ_max)`` of the initial yaw (rad).
+    """
+
+    channel: U.ChannelParams
+    gamma: U.GammaParams
+    phase_sigma: jax.Array
+    anchors: jax.Array
+    odometry_sd: jax.Array
+    offset_sd: jax.Array
+    box_lo: jax.Array
+    box_hi: jax.Array
+    heading_range: jax.Array
+
+
+class RFIDAnchorState(NamedTuple):
+    """``particles [M, 4 + G]`` = ``(x, y, z, φ, θ_1 … θ_G)``; ``log_weights [M]`` normalised."""
+
+    particles: jax.Array
+    log_weights: jax.Array
+
+
+class RFIDAnchorInfo(NamedTuple):
+    """Per-step diagnostics: ``estimate [4 + G]`` (weighted mean; angles on the circle), ``ess``,
+    ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``."""
+
+    estimate: jax.Array
+    ess: jax.Array
+    resampled: jax.Array
+    log_likelihood: jax.Array
+    degenerate: jax.Array
+    num_reads: jax.Array
+
+
+def default_params(
+    anchors: Any,
+    box_lo: Any = (0.0, 0.0, 0.0),
+    box_hi: Any = (2.0, 3.0, 2.0),
+    odometry_sd: Any = (0.01, 0.01, 0.002, 0.01),
+    heading_range: Any = (-math.pi, math.pi),
+    channel: U.ChannelParams = U.DEFAULT_CHANNEL,
+    gamma: U.GammaParams = U.DEFAULT_GAMMA,
+    phase_sigma: Any = None,
+    offset_sd: Any = 0.05,
+) -> RFIDAnchorParams:
+    """Parameters for anchors ``[G, 3]`` (m); odometry sd per step (ours: 1 cm, 1 cm, 2 mm, 0.01 rad);
+    offset roughening 0.05 rad per step (ours).
+
+    ``phase_sigma`` defaults to ``0.1 λ``. Validated.
+    """
+    if phase_sigma is None:
+        phase_sigma = U.DEFAULT_PHASE_SIGMA_FRACTION * float(np.asarray(channel.wavelength))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    p = RFIDAnchorParams(
+        channel=U.ChannelParams(*(f32(c) for c in channel[:4]), U.AntennaParams(*(f32(c) for c in channel.antenna))),
+        gamma=U.GammaParams(f32(gamma.k), f32(gamma.theta)),
+        phase_sigma=f32(phase_sigma),
+        anchors=f32(anchors),
+        odometry_sd=f32(odometry_sd),
+        offset_sd=f32(offset_sd),
+        box_lo=f32(box_lo),
+        box_hi=f32(box_hi),
+        heading_range=f32(heading_range),
+    )
+    _validate_params(p)
+    return p
+
+
+def _validate_params(p: RFIDAnchorParams) -> None:
+    if not isinstance(p, RFIDAnchorParams):
+        raise ValueError(f"params must be an RFIDAnchorParams, got {type(p).__name__}")
+    U.validate_channel(p.channel)
+    U.validate_gamma(p.gamma)
+    check_shape("params.phase_sigma", p.phase_sigma, ())
+    check_positive("params.phase_sigma (σ_phase, m)", p.phase_sigma)
+    check_shape("params.anchors", p.anchors, (None, 3))
+    if np.shape(p.anchors)[0] < 1:
+        raise ValueError("params.anchors must hold at least one anchor tag")
+    check_finite("params.anchors", p.anchors)
+    check_shape("params.odometry_sd", p.odometry_sd, (4,))
+    check_nonnegative("params.odometry_sd", p.odometry_sd)
+    check_shape("params.offset_sd", p.offset_sd, ())
+    check_nonnegative("params.offset_sd", p.offset_sd)
+    for name in ("box_lo", "box_hi"):
+        check_shape(f"params.{name}", getattr(p, name), (3,))
+        check_finite(f"params.{name}", getattr(p, name))
+    check_shape("params.heading_range", p.heading_range, (2,))
+    check_finite("params.heading_range", p.heading_range)
+    if is_concrete((p.box_lo, p.box_hi, p.heading_range, p.anchors)):
+        lo, hi = np.asarray(p.box_lo), np.asarray(p.box_hi)
+        if not np.all(hi > lo):
+            raise ValueError(f"the search box must have a positive volume: box_lo {lo.tolist()} < box_hi {hi.tolist()}")
+        h = np.asarray(p.heading_range)
+        if not h[1] > h[0]:
+            raise ValueError(f"heading_range must be (φ_min, φ_max) with φ_min < φ_max, got {h.tolist()}")
+        if np.any(np.asarray(p.anchors)[:, 2] < 0):
+            raise ValueError("anchor heights must be ≥ 0 (the ground is z = 0)")
+
+
+def init(key: jax.Array, config: RFIDAnchorConfig, params: RFIDAnchorParams) -> RFIDAnchorState:
+    """[A] Alg. 8 lines 4–8: uniform positions, yaw in ``heading_range``, offsets on the circle."""
+    if not isinstance(config, RFIDAnchorConfig):
+        raise ValueError(f"config must be an RFIDAnchorConfig, got {type(config).__name__}")
+    _validate_params(params)
+    m, g = config.num_particles, params.anchors.shape[0]
+    k1, k2, k3 = jax.random.split(key, 3)
+    xyz = params.box_lo + jax.random.uniform(k1, (m, 3)) * (params.box_hi - params.box_lo)
+    phi = params.heading_range[0] + jax.random.uniform(k2, (m, 1)) * (params.heading_range[1] - params.heading_range[0])
+    off = jax.random.uniform(k3, (m, g), minval=-math.pi, maxval=math.pi)
+    parts = jnp.concatenate([xyz, weights.wrap_angle(phi), off], axis=-1)
+    return RFIDAnchorState(parts, jnp.full((m,), -math.log(m), jnp.float32))
+
+
+def _angle_dims(g: int) -> tuple[int, ...]:
+    return (3,) + tuple(range(4, 4 + g))
+
+
+def _step(key, state, config, params, control, reads):
+    m, d = state.particles.shape
+    g = d - 4
+    k_move, k_off, k_res = jax.random.split(key, 3)
+    p = state.particles
+    dxy = control[:2]
+    if config.odometry_frame == "body":
+        c, s = jnp.cos(p[:, 3]), jnp.sin(p[:, 3])
+        dxy = jnp.stack([c * control[0] - s * control[1], s * control[0] + c * control[1]], axis=-1)
+    else:
+        dxy = jnp.broadcast_to(dxy, (m, 2))
+    noise = jax.random.normal(k_move, (m, 4), p.dtype) * params.odometry_sd
+    moved = jnp.concatenate([p[:, :2] + dxy + noise[:, :2], p[:, 2:3] + control[2] + noise[:, 2:3],
+                             weights.wrap_angle(p[:, 3:4] + control[3] + noise[:, 3:4]),
+                             weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))],
+                            axis=-1)
+    ll = U.read_log_likelihood(
+        moved[:, None, :4], params.anchors[None, :, :], moved[:, 4:], reads.rssi[None, :], reads.phase[None, :],
+        reads.wavelength[None, :], reads.mask[None, :], params.channel, params.gamma, params.phase_sigma,
+        use_rssi=config.weighting in ("combined", "rssi"), use_phase=config.weighting in ("combined", "phase"),
+        softness=config.antenna_softness,
+    )
+    norm = weights.normalize(state.log_weights + ll)
+    probs = jnp.exp(norm.log_weights)
+    estimate = weights.mean_from_probabilities(moved, probs, _angle_dims(g))
+    any_read = jnp.any(reads.mask)
+    threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
+    res = resampling.conditional_resample(k_res, moved, norm.log_weights, threshold=threshold, normalized=True)
+    info = RFIDAnchorInfo(estimate, weights.ess_from_probabilities(probs), res.resampled,
+                          jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate, jnp.sum(reads.mask, dtype=jnp.int32))
+    return RFIDAnchorState(res.particles, res.log_weights), info
+
+
+_step_jit = jax.jit(_step, static_argnames=("config",))
+
+
+def _run(key, config, params, controls, reads, state):
+    return scan_filter(_step, config, params, controls, reads, state, key)
+
+
+_run_jit = jax.jit(_run, static_argnames=("config",))
+
+
+def _as_reads(r: AnchorReads) -> AnchorReads:
+    return AnchorReads(*(jnp.asarray(x, jnp.float32) for x in r[:3]), jnp.asarray(r.mask, bool))
+
+
+def _check(config, params, state, controls, reads, lead: int):
+    if not isinstance(config, RFIDAnchorConfig):
+        raise ValueError(f"config must be an RFIDAnchorConfig, got {type(config).__name__}")
+    _validate_params(params)
+    g = np.shape(params.anchors)[0]
+    if not isinstance(state, RFIDAnchorState):
+        raise ValueError(f"state must be an RFIDAnchorState, got {type(state).__name__}")
+    check_shape("state.particles", state.particles, (config.num_particles, 4 + g))
+    check_shape("state.log_weights", state.log_weights, (config.num_particles,))
+    t = (None,) * lead
+    check_shape("controls" if lead else "control", controls, t + (4,))
+    check_finite("controls" if lead else "control", controls)
+    if not isinstance(reads, AnchorReads):
+        raise ValueError(f"reads must be an AnchorReads, got {type(reads).__name__}")
+    shape = np.shape(controls)[:lead] + (g,)
+    for name in AnchorReads._fields:
+        if np.shape(getattr(reads, name)) != shape:
+            raise ValueError(f"reads.{name} must have shape {shape} (one slot per anchor), got {np.shape(getattr(reads, name))}")
+    if is_concrete(reads):
+        mask = np.asarray(reads.mask, bool)
+        for name in ("rssi", "phase", "wavelength"):
+            if not np.all(np.isfinite(np.asarray(getattr(reads, name)))):
+                raise ValueError(f"reads.{name} must be finite everywhere (fill masked slots with any finite value)")
+        if mask.any():
+            U.validate_rssi(np.asarray(reads.rssi)[mask], name="reads.rssi")
+            U.validate_phase(np.asarray(reads.phase)[mask], name="reads.phase")
+            check_positive("reads.wavelength", np.asarray(reads.wavelength)[mask])
+
+
+def step(key, state: RFIDAnchorState, config: RFIDAnchorConfig, params: RFIDAnchorParams, control: Any,
+         reads: AnchorReads) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
+    """One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors read."""
+    _check(config, params, state, control, reads, 0)
+    return _step_jit(key, state, config, params, jnp.asarray(control, jnp.float32), _as_reads(reads))
+
+
+def run(key, config: RFIDAnchorConfig, params: RFIDAnchorParams, controls: Any, reads: AnchorReads,
+        initial_state: RFIDAnchorState) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
+    """[A] Alg. 8 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
+
+    ``controls [T, 4]``; ``reads`` an :class:`AnchorReads` of ``[T, G]``.
+    """
+    _check(config, params, initial_state, controls, reads, 1)
+    return _run_jit(key, config, params, jnp.asarray(controls, jnp.float32), _as_reads(reads), initial_state)

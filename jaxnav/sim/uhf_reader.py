@@ -1,0 +1,801 @@
+"""Simulated UHF-RFID reader: RSSI and phase reads of passive tags under light and strong multipath ([A] §4.1.2, §5.2).
+
+Overview
+--------
+A reader antenna on a robot moves along a known path of poses
+``r_t = (x, y, z, ψ)`` (m, m, m, rad; ``ψ`` the yaw of the boresight) and
+reads ``G`` static tags at ``p_g = (x, y, z)`` (m), ``J`` times per step. The
+output is a :class:`~jaxnav.models.uhf_rfid.UHFReads` with leading axes
+``[G, T, J]`` (RSSI in W, phase in rad in ``[0, 2π)``, wavelength in m, a
+validity mask). The sensor model it builds on is
+:mod:`jaxnav.models.uhf_rfid` (monostatic power ``y = P_T η_T G_R² G_T² L² |h|⁴``
+with the two-ray ``L``, phase ``φ = −4πD/λ + θ_off``); its functions
+(:func:`~jaxnav.models.uhf_rfid.power_scale`,
+:func:`~jaxnav.models.uhf_rfid.sample_rssi`,
+:func:`~jaxnav.models.uhf_rfid.phase`,
+:func:`~jaxnav.models.uhf_rfid.antenna_gain`) are used here, not re-derived.
+
+Equations implemented (per tag ``p``, reader pose ``r``, wavelength ``λ``, read ``j``)
+------------------------------------------------------------------------------------------
+Let ``D = |p − r_xyz|`` and ``a = P_T η_T G_R(p − r)² G_T² L(D, h_R, h_T, λ)²``
+(:func:`~jaxnav.models.uhf_rfid.power_scale`: the deterministic part of
+[A] §4.1.2). Wall reflections use the **image method**: the room is the box
+``[lo, hi]``; its four vertical walls and its ceiling (indices ``0 … 4`` =
+``x = lo_x, x = hi_x, y = lo_y, y = hi_y, z = hi_z``) reflect with real
+amplitude coefficients ``Γ_w``. The floor is *not* an image wall: the ground
+reflection is already inside the two-ray ``L`` of the model. Image ``i`` is
+the tag reflected across a sequence of walls ``w_1 … w_n`` (a reflection
+across the plane ``x_a = c`` maps ``x_a ↦ 2c − x_a``); its coefficient is
+``Γ_i = Π Γ_w``, its path length ``d_i = |p_i − r_xyz|``. ``order = 1`` uses the
+5 first-order images, ``order = 2`` adds the 12 distinct second-order ones
+(two reflections across different walls; ``x⁻x⁺`` and ``x⁺x⁻`` differ, two
+perpendicular walls in either order give one image). The **composite one-way
+channel relative to the direct ray** is
+
+    h_mp = 1 + Σ_i Γ_i · √(G_R(p_i − r) / G_R(p − r)) · (D / d_i) · exp(−j 2π (d_i − D) / λ)
+
+(each ray: amplitude ∝ reflection coefficient · √(reader antenna gain toward
+its image) / path length, phase −2π·path/λ, all relative to the direct ray,
+whose free-space amplitude is ``√G_R · λ/(4πD)``; the tag gain ``G_T`` is
+taken isotropic, the same for every ray). With no walls (all ``Γ_w = 0``)
+``h_mp = 1`` exactly. By reciprocity the monostatic round-trip channel is the
+square of the one-way channel, so ``|h_mp|`` enters like [A]'s ``|h|``:
+
+    y_j = a · |h_mp|⁴ · g_j²,            g_j = |h_f|² ~ Gamma(k, θ),  k θ = 1      (RSSI, W)
+    φ_j = (−4πD/λ + 2·arg h_mp + θ_off + ε_j)  mod 2π,   ε_j ~ N(0, σ_φ²)            (phase, rad)
+
+i.e. [A]'s ``|h|⁴ = |h_mp|⁴ · |h_f|⁴``: deterministic multipath from the
+walls times an i.i.d. Gamma fading ``g_j`` (:func:`~jaxnav.models.uhf_rfid.sample_rssi`
+with ``a·|h_mp|⁴``), and the phase is the angle of the composite round-trip
+channel ``(h_mp e^{−j2πD/λ})²`` plus the offset and a Gaussian noise
+(:func:`~jaxnav.models.uhf_rfid.phase` with offset ``θ_off + 2 arg h_mp + ε``).
+The squared-Gamma model of [A] is exact for ``h_mp = 1`` ("light") and
+mis-specified otherwise ("strong"): along a path ``|h_mp|⁴`` has fading dips
+and several maxima, so RSSI vs reader position is multimodal ([A] Fig. 5.2,
+§5.2).
+
+Detection. The power incident on the tag is
+``P_inc = P_T G_R G_T L |h_mp|² g = √(y P_T / η_T)``; a read exists when the tag
+is powered, ``P_inc ≥ tag_sensitivity``, the reader hears it,
+``y ≥ sensitivity``, and an independent Bernoulli(``read_probability``)
+succeeds (collisions, protocol losses). Missing reads are masked (never
+zeros): their slots hold the finite dummies ``rssi = MASKED_RSSI = 1 W``,
+``phase = 0`` and the true reader pose and wavelength, which pass
+:func:`~jaxnav.models.uhf_rfid.validate_reads`.
+
+Channel hopping: ``wavelengths`` is one λ or an array ``[C]`` cycled over
+steps (step ``t`` uses ``λ[t mod C]`` for its ``J`` reads).
+
+Keys: tag ``g`` with id ``tag_ids[g]`` (default ``g``) and step ``t`` draw from
+``k_gt = fold_in(fold_in(key, tag_ids[g]), t)``, split into
+``(k_fade, k_phase, k_read)``. A tag's reads therefore depend only on its own
+id, position and offset, never on the other tags or their order.
+
+Multipath presets (all numbers **ours**; [A] gives none)
+--------------------------------------------------------
+* ``"light"`` (:data:`LIGHT_MULTIPATH`): no walls (``Γ = 0``); fading
+  ``k = 20, θ = 0.05`` (``kθ = 1``, RSSI spread ≈ 1.9 dB); phase noise
+  ``σ_φ = 3°``.
+* ``"strong"`` (:data:`STRONG_MULTIPATH`): the room :data:`DEFAULT_ROOM`
+  ``[−1, 3] × [−1.5, 3.5] × [0, 2.8]`` m around [A]'s 2 × 3 × 2 m search box
+  :data:`SEARCH_BOX_A` (0.5–1.5 m of clearance, a 2.8 m ceiling) with
+  ``Γ = −0.6`` on the four walls (between concrete, |Γ| ≈ 0.3–0.5, and
+  metal shelving, |Γ| → 1; the sign is the phase inversion of a horizontally
+  polarised reflection) and ``Γ = −0.4`` on the ceiling, second-order images; a smaller-``k`` (stronger)
+  diffuse fading ``k = 8, θ = 0.125``; phase noise ``σ_φ = 10°``.
+* Reader sensitivity :data:`DEFAULT_SENSITIVITY` = −80 dBm (typical of UHF
+  readers, −70 to −85 dBm); tag chip sensitivity
+  :data:`DEFAULT_TAG_SENSITIVITY` = −18 dBm (a typical passive UHF chip). With
+  :data:`~jaxnav.models.uhf_rfid.DEFAULT_CHANNEL` the forward link binds first
+  (as in real passive systems): in the main lobe tags are read to ≈ 11 m, in
+  the back lobe only to ≈ 1.1 m.
+
+Paths
+-----
+:func:`line_path` is the straight pass of [A] Fig. 5.2 (distance to the tag
+first decreasing, then increasing). One straight line cannot localise a tag
+in 3D: every distance to points of a line is unchanged by a rotation about
+the line, so a circle of positions fits (the antenna pattern breaks this only
+coarsely). Parallel passes whose cross-section offsets ``(y, z)`` are
+**not collinear** (:func:`lawnmower_path` with ≥ 2 depths and ≥ 2 heights)
+remove it: the range profile along each pass gives ``x`` and the
+perpendicular distance to that pass, and three perpendicular distances to
+non-collinear points of the ``(y, z)`` plane fix ``(y, z)`` (two leave a
+mirror image). With an unknown phase offset the phase gives range
+*differences* along each pass, whose curvature still fixes the perpendicular
+distance, so the argument holds for phase-only localization too.
+
+Units: SI (m, rad, W). All array functions are jittable and differentiable in
+the continuous parameters (positions, ``Γ``, room, ``k``, ``θ``, ``σ_φ``, λ);
+the detection mask and the piecewise-constant antenna gain are steps (pass
+``softness`` for a smooth gain).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core.weights import wrap_angle
+from jaxnav.core.validation import (
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    is_concrete,
+)
+from jaxnav.models import uhf_rfid
+from jaxnav.models.uhf_rfid import ChannelParams, DEFAULT_CHANNEL, GammaParams, UHFReads
+
+__all__ = [
+    "SEARCH_BOX_A",
+    "DEFAULT_READER_HEIGHT",
+    "DEFAULT_SENSITIVITY",
+    "DEFAULT_TAG_SENSITIVITY",
+    "MASKED_RSSI",
+    "MASKED_PHASE",
+    "WALL_NAMES",
+    "Room",
+    "DEFAULT_ROOM",
+    "Multipath",
+    "LIGHT_MULTIPATH",
+    "STRONG_MULTIPATH",
+    "MULTIPATH_NAMES",
+    "get_multipath",
+    "image_sequences",
+    "line_path",
+    "lawnmower_path",
+    "anchor_position",
+    "CompositeChannel",
+    "composite_channel",
+    "expected_rssi",
+    "simulate_reads",
+    "anchor_power_scale",
+    "validate_multipath",
+]
+
+SEARCH_BOX_A = (np.array([0.0, 0.0, 0.0]), np.array([2.0, 3.0, 2.0]))
+"""[A] §5.2's 2 m × 3 m × 2 m search box ``(lo, hi)`` (m); the placement at the origin is ours."""
+
+DEFAULT_READER_HEIGHT = 1.0
+"""Reader antenna height (m) when a path is given in 2D (ours)."""
+
+DEFAULT_SENSITIVITY = 1e-11
+"""Reader sensitivity −80 dBm = 1e-11 W (ours: typical UHF readers hear −70 to −85 dBm)."""
+
+DEFAULT_TAG_SENSITIVITY = 10.0 ** (-4.8)
+"""Tag chip sensitivity −18 dBm ≈ 1.58e-5 W of incident power (ours: a typical passive UHF chip)."""
+
+MASKED_RSSI = 1.0
+"""RSSI (W) written in masked slots: finite, positive (passes validation) and absurdly large, so misuse shows."""
+
+MASKED_PHASE = 0.0
+"""Phase (rad) written in masked slots."""
+
+WALL_NAMES = ("x_lo", "x_hi", "y_lo", "y_hi", "ceiling")
+"""The reflecting surfaces of a :class:`Room`, in the order of ``Room.reflection``."""
+
+_WALL_AXIS_SIDE = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 1))  # (axis, 0 = lo / 1 = hi)
+
+
+class Room(NamedTuple):
+    """A box room for the image method (a differentiable pytree).
+
+    Attributes:
+        lo: ``[3]`` lower corner (m); ``lo[2]`` is the floor, ``0`` (the floor is
+            the two-ray ground of the model, never an image wall).
+        hi: ``[3]`` upper corner (m); ``hi[2]`` is the ceiling height.
+        reflection: ``[5]`` real amplitude reflection coefficients ``Γ_w`` of
+            :data:`WALL_NAMES` (``|Γ| ≤ 1``; 0 = no wall).
+    """
+
+    lo: Any
+    hi: Any
+    reflection: Any
+
+
+DEFAULT_ROOM = Room(
+    lo=np.array([-1.0, -1.5, 0.0], np.float32),
+    hi=np.array([3.0, 3.5, 2.8], np.float32),
+    reflection=np.array([-0.6, -0.6, -0.6, -0.6, -0.4], np.float32),
+)
+"""Ours: a 4 × 5 × 2.8 m room around :data:`SEARCH_BOX_A` (walls Γ = −0.6, ceiling Γ = −0.4)."""
+
+
+class Multipath(NamedTuple):
+    """Multipath environment (a differentiable pytree; module docstring for the equations).
+
+    Attributes:
+        gamma: :class:`~jaxnav.models.uhf_rfid.GammaParams` of the diffuse fading
+            ``g = |h_f|² ~ Gamma(k, θ)``.
+        phase_sigma: ``σ_φ`` (rad), sd of the Gaussian phase noise ``ε``.
+        room: :class:`Room`; all ``Γ = 0`` gives the light (two-ray + Gamma) model.
+    """
+
+    gamma: GammaParams
+    phase_sigma: Any
+    room: Room
+
+
+LIGHT_MULTIPATH = Multipath(
+    gamma=GammaParams(k=20.0, theta=0.05),
+    phase_sigma=math.radians(3.0),
+    room=DEFAULT_ROOM._replace(reflection=np.zeros(5, np.float32)),
+)
+"""Two-ray mean power × Gamma(20, 0.05) fading, 3° phase noise, no walls (ours)."""
+
+STRONG_MULTIPATH = Multipath(
+    gamma=GammaParams(k=8.0, theta=0.125),
+    phase_sigma=math.radians(10.0),
+    room=DEFAULT_ROOM,
+)
+"""Wall images of :data:`DEFAULT_ROOM` × Gamma(8, 0.125) fading, 10° phase noise (ours)."""
+
+MULTIPATH_NAMES = {"light": LIGHT_MULTIPATH, "strong": STRONG_MULTIPATH}
+
+
+def get_multipath(multipath: str | Multipath) -> Multipath:
+    """``"light"`` / ``"strong"`` → the preset :class:`Multipath`; a :class:`Multipath` is validated and returned."""
+    if isinstance(multipath, str):
+        if multipath not in MULTIPATH_NAMES:
+            raise ValueError(f"multipath must be one of {sorted(MULTIPATH_NAMES)} or a Multipath, got {multipath!r}")
+        return MULTIPATH_NAMES[multipath]
+    if not isinstance(multipath, Multipath):
+        raise ValueError(f"multipath must be one of {sorted(MULTIPATH_NAMES)} or a Multipath, got {type(multipath).__name__}")
+    validate_multipath(multipath)
+    return multipath
+
+
+def validate_multipath(mp: Multipath) -> None:
+    """``k, θ > 0``, ``σ_φ ≥ 0``, room ``lo < hi`` (``[3]`` each) with the floor at 0, ``|Γ| ≤ 1`` (``[5]``)."""
+    if not isinstance(mp, Multipath):
+        raise ValueError(f"multipath must be a Multipath, got {type(mp).__name__}")
+    uhf_rfid.validate_gamma(mp.gamma)
+    check_nonnegative("multipath.phase_sigma", mp.phase_sigma)
+    check_shape("multipath.room.lo", mp.room.lo, (3,))
+    check_shape("multipath.room.hi", mp.room.hi, (3,))
+    check_shape("multipath.room.reflection", mp.room.reflection, (5,))
+    for name in ("lo", "hi", "reflection"):
+        check_finite(f"multipath.room.{name}", getattr(mp.room, name))
+    if is_concrete(mp.room):
+        lo, hi, refl = (np.asarray(x, np.float64) for x in mp.room)
+        if not np.all(hi > lo):
+            raise ValueError(f"multipath.room must have lo < hi on every axis, got lo={lo}, hi={hi}")
+        if lo[2] != 0.0:
+            raise ValueError(f"multipath.room.lo[2] is the floor and must be 0 (the two-ray ground), got {lo[2]}")
+        if np.any(np.abs(refl) > 1.0):
+            raise ValueError(f"multipath.room.reflection must be amplitude coefficients with |Γ| ≤ 1, got {refl}")
+
+
+# --------------------------------------------------------------------------------------
+# Image sequences (static)
+# --------------------------------------------------------------------------------------
+
+
+def image_sequences(order: int) -> tuple[tuple[int, ...], ...]:
+    """The wall sequences of the distinct images up to ``order`` (0, 1 or 2): 0, 5 or 5 + 12 images.
+
+    Second order: every ordered pair of different walls, keeping one of the two
+    orders for perpendicular walls (which give the same image).
+    """
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order not in (0, 1, 2):
+        raise ValueError(f"order (image-method reflection order) must be 0, 1 or 2, got {order!r}")
+    seqs: list[tuple[int, ...]] = []
+    if order >= 1:
+        seqs += [(w,) for w in range(5)]
+    if order >= 2:
+        for w1 in range(5):
+            for w2 in range(5):
+                if w1 == w2:
+                    continue
+                same_axis = _WALL_AXIS_SIDE[w1][0] == _WALL_AXIS_SIDE[w2][0]
+                if same_axis or w1 < w2:
+                    seqs.append((w1, w2))
+    return tuple(seqs)
+
+
+# --------------------------------------------------------------------------------------
+# Paths (host-side NumPy)
+# --------------------------------------------------------------------------------------
+
+
+def _point3(name: str, p: Any, height: float | None) -> np.ndarray:
+    v = np.asarray(p, np.float64)
+    if v.shape not in ((2,), (3,)):
+        raise ValueError(f"{name} must have shape (2,) or (3,), got {v.shape}")
+    check_finite(name, v)
+    if v.shape == (2,):
+        v = np.append(v, DEFAULT_READER_HEIGHT if height is None else float(height))
+    elif height is not None:
+        v = v.copy()
+        v[2] = float(height)
+    if v[2] < 0:
+        raise ValueError(f"{name} z (height above the ground z = 0) must be ≥ 0, got {v[2]}")
+    return v
+
+
+def line_path(
+    start: Any,
+    end: Any,
+    num_steps: int,
+    heading: float | None = None,
+    height: float | None = None,
+    facing: Any = None,
+) -> np.ndarray:
+    """Reader poses ``[T, 4]`` ``(x, y, z, ψ)`` evenly spaced on the segment ``start → end`` ([A] Fig. 5.2).
+
+    Args:
+        start, end: ``[2]`` (x, y) or ``[3]`` (x, y, z) positions (m).
+        num_steps: ``T ≥ 2`` poses, both ends included.
+        heading: constant boresight yaw ``ψ`` (rad). Default: perpendicular to
+            the motion (a side-looking antenna), toward the side of ``facing``
+            if given, else to the left of the direction of travel
+            (``atan2(Δy, Δx) + π/2``).
+        height: reader height (m); overrides the z of 3D points; default
+            :data:`DEFAULT_READER_HEIGHT` for 2D points.
+        facing: optional ``[2]``/``[3]`` point (e.g. the tag) the antenna should face.
+
+    Returns float32 ``[T, 4]``.
+    """
+    num_steps = check_positive_int("num_steps", num_steps)
+    if num_steps < 2:
+        raise ValueError(f"num_steps must be ≥ 2 (a line has two ends), got {num_steps}")
+    a = _point3("start", start, height)
+    b = _point3("end", end, height)
+    d = b - a
+    if np.hypot(d[0], d[1]) <= 1e-12 and heading is None:
+        raise ValueError("start and end have the same (x, y): give an explicit heading")
+    if heading is None:
+        psi = math.atan2(d[1], d[0]) + math.pi / 2.0
+        if facing is not None:
+            f = np.asarray(facing, np.float64)
+            if f.shape not in ((2,), (3,)):
+                raise ValueError(f"facing must have shape (2,) or (3,), got {f.shape}")
+            check_finite("facing", f)
+            side = d[0] * (f[1] - a[1]) - d[1] * (f[0] - a[0])  # > 0: facing point on the left
+            if side < 0:
+                psi -= math.pi
+        psi = math.atan2(math.sin(psi), math.cos(psi))
+    else:
+        check_finite("heading", heading)
+        psi = float(heading)
+    s = np.linspace(0.0, 1.0, num_steps)[:, None]
+    xyz = a + s * d
+    return np.concatenate([xyz, np.full((num_steps, 1), psi)], axis=1).astype(np.float32)
+
+
+def lawnmower_path(
+    x_range: Any,
+    y_values: Any,
+    z_values: Any,
+    steps_per_pass: int,
+    heading: float = math.pi / 2,
+    connect: bool = True,
+) -> np.ndarray:
+    """Boustrophedon of parallel passes along x at every ``(y, z)`` offset: poses ``[T, 4]``.
+
+    Passes run along ``x`` from ``x_range[0]`` to ``x_range[1]`` and back,
+    alternately, at each depth ``y`` (inner loop, snaking) and height ``z``
+    (outer loop). The boresight keeps the yaw ``heading`` (default ``π/2``:
+    facing +y, so tags should lie at larger y than the passes). For 3D
+    observability give ≥ 2 depths and ≥ 2 heights (non-collinear ``(y, z)``
+    offsets; module docstring, "Paths").
+
+    Args:
+        x_range: ``(x_start, x_end)`` (m).
+        y_values, z_values: ``[Ny]``, ``[Nz]`` pass offsets (m); ``z ≥ 0``.
+        steps_per_pass: poses per pass (≥ 2), ends included.
+        heading: constant yaw (rad).
+        connect: add straight connector moves between passes, sampled at the
+            pass spacing (the reader keeps reading while it moves over); with
+            False consecutive passes are simply concatenated.
+
+    Returns float32 ``[T, 4]``; ``T = Ny·Nz·steps_per_pass`` plus the connectors.
+    """
+    xr = np.asarray(x_range, np.float64)
+    check_shape("x_range", xr, (2,))
+    check_finite("x_range", xr)
+    if xr[0] == xr[1]:
+        raise ValueError(f"x_range must have two different ends, got {xr.tolist()}")
+    ys = np.atleast_1d(np.asarray(y_values, np.float64))
+    zs = np.atleast_1d(np.asarray(z_values, np.float64))
+    check_shape("y_values", ys, (None,))
+    check_shape("z_values", zs, (None,))
+    if ys.size < 1 or zs.size < 1:
+        raise ValueError("y_values and z_values must hold at least one offset each")
+    check_finite("y_values", ys)
+    check_finite("z_values", zs)
+    if np.any(zs < 0):
+        raise ValueError(f"z_values (reader heights) must be ≥ 0, got {zs.tolist()}")
+    steps = check_positive_int("steps_per_pass", steps_per_pass)
+    if steps < 2:
+        raise ValueError(f"steps_per_pass must be ≥ 2, got {steps}")
+    check_finite("heading", heading)
+    spacing = abs(xr[1] - xr[0]) / (steps - 1)
+    segs: list[np.ndarray] = []
+    n = 0
+    for iz, z in enumerate(zs):
+        y_order = ys if iz % 2 == 0 else ys[::-1]
+        for y in y_order:
+            x0, x1 = (xr[0], xr[1]) if n % 2 == 0 else (xr[1], xr[0])
+            p = np.stack([np.linspace(x0, x1, steps), np.full(steps, y), np.full(steps, z)], axis=1)
+            if connect and segs:
+                prev = segs[-1][-1]
+                gap = np.linalg.norm(p[0] - prev)
+                m = int(math.ceil(gap / spacing - 1e-9)) - 1
+                if m > 0:
+                    f = np.arange(1, m + 1)[:, None] / (m + 1)
+                    segs.append(prev + f * (p[0] - prev))
+            segs.append(p)
+            n += 1
+    xyz = np.concatenate(segs, axis=0)
+    return np.concatenate([xyz, np.full((xyz.shape[0], 1), float(heading))], axis=1).astype(np.float32)
+
+
+def anchor_position(
+    tag: Any, distance: float, direction: Any = None, key: jax.Array | None = None, box: Any = None, tries: int = 256
+) -> np.ndarray:
+    """A point at ``distance`` (m) from ``tag [3]``: along ``direction [3]``, or a random direction from ``key``.
+
+    For [A] Fig. 5.3 (RMSE vs anchor-to-tag distance; correlation is lost
+    beyond λ/2). The result must lie inside ``box = (lo [3], hi [3])`` if given,
+    and above the ground (``z ≥ 0``). With ``key``, directions are drawn
+    uniformly on the sphere (``tries`` candidates, the first one inside is
+    returned; the same key gives the same point). Host-side; returns float64 ``[3]``.
+    """
+    p = np.asarray(tag, np.float64)
+    check_shape("tag", p, (3,))
+    check_finite("tag", p)
+    if p[2] < 0:
+        raise ValueError(f"tag z (height above the ground) must be ≥ 0, got {p[2]}")
+    check_nonnegative("distance", distance)
+    check_finite("distance", distance)
+    if box is not None:
+        lo, hi = (np.asarray(b, np.float64) for b in box)
+        check_shape("box[0]", lo, (3,))
+        check_shape("box[1]", hi, (3,))
+        if not np.all(hi >= lo):
+            raise ValueError(f"box must have lo ≤ hi, got lo={lo}, hi={hi}")
+    else:
+        lo = np.array([-np.inf, -np.inf, 0.0])
+        hi = np.full(3, np.inf)
+    lo = np.maximum(lo, [-np.inf, -np.inf, 0.0])
+
+    def inside(q):
+        return np.all(q >= lo - 1e-9, axis=-1) & np.all(q <= hi + 1e-9, axis=-1)
+
+    if (direction is None) == (key is None):
+        raise ValueError("give exactly one of direction (a [3] vector) and key (a random direction)")
+    if direction is not None:
+        u = np.asarray(direction, np.float64)
+        check_shape("direction", u, (3,))
+        check_finite("direction", u)
+        nrm = np.linalg.norm(u)
+        if nrm == 0:
+            raise ValueError("direction must be a non-zero vector")
+        q = p + float(distance) * u / nrm
+        if not inside(q):
+            raise ValueError(f"the anchor {q.tolist()} is outside the box / below the ground; choose another direction")
+        return q
+    tries = check_positive_int("tries", tries)
+    u = np.asarray(jax.random.normal(key, (tries, 3), jnp.float32), np.float64)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-30)
+    q = p + float(distance) * u
+    ok = inside(q)
+    if not ok.any():
+        raise ValueError(f"no point at distance {distance} m from the tag lies inside the box in {tries} tries")
+    return q[int(np.argmax(ok))]
+
+
+# --------------------------------------------------------------------------------------
+# Composite channel (jittable)
+# --------------------------------------------------------------------------------------
+
+
+class CompositeChannel(NamedTuple):
+    """The wall multipath of a read, relative to the direct ray (module docstring).
+
+    Attributes:
+        power_ratio: ``|h_mp|²`` (one-way power ratio; the RSSI factor is its square).
+        phase_shift: ``2·arg h_mp`` wrapped to ``[−π, π)`` (rad): the round-trip phase added to ``−4πD/λ``.
+    """
+
+    power_ratio: jax.Array
+    phase_shift: jax.Array
+
+
+def _images(tag, room, seqs):
+    """Image positions ``[..., I, 3]`` and coefficients ``[I]`` of ``tag [..., 3]``."""
+    lo, hi, refl = room
+    pts, coefs = [], []
+    for seq in seqs:
+        q = [tag[..., 0], tag[..., 1], tag[..., 2]]
+        c = 1.0
+        for w in seq:
+            axis, side = _WALL_AXIS_SIDE[w]
+            plane = hi[axis] if side else lo[axis]
+            q[axis] = 2.0 * plane - q[axis]
+            c = c * refl[w]
+        pts.append(jnp.stack(q, axis=-1))
+        coefs.append(c)
+    return jnp.stack(pts, axis=-2), jnp.stack(coefs)
+
+
+def _composite(reader, tag, wavelength, antenna, room, seqs, softness):
+    """``(Re h_mp, Im h_mp, D)`` for reader ``[..., 4]``, tag ``[..., 3]``, λ broadcastable to ``[...]``."""
+    d_vec = tag - reader[..., :3]
+    dist = jnp.sqrt(jnp.maximum(jnp.sum(d_vec * d_vec, axis=-1), 1e-12))
+    if not seqs:
+        one = jnp.ones_like(dist)
+        return one, jnp.zeros_like(dist), dist
+    imgs, coef = _images(tag, room, seqs)  # [..., I, 3], [I]
+    v = imgs - reader[..., None, :3]
+    d_i = jnp.sqrt(jnp.maximum(jnp.sum(v * v, axis=-1), 1e-12))
+    psi = reader[..., 3]
+    g0 = uhf_rfid.antenna_gain(d_vec, psi, antenna, softness)
+    gi = uhf_rfid.antenna_gain(v, psi[..., None], antenna, softness)
+    amp = coef * jnp.sqrt(gi / g0[..., None]) * dist[..., None] / d_i
+    ph = -2.0 * jnp.pi * (d_i - dist[..., None]) / jnp.asarray(wavelength)[..., None]
+    re = 1.0 + jnp.sum(amp * jnp.cos(ph), axis=-1)
+    im = jnp.sum(amp * jnp.sin(ph), axis=-1)
+    return re, im, dist
+
+
+def _order_for(mp: Multipath, order: int) -> int:
+    """Skip the images when every Γ is known to be 0 (the result is the same: h_mp = 1 exactly)."""
+    if is_concrete(mp.room.reflection) and not np.any(np.asarray(mp.room.reflection)):
+        return 0
+    return order
+
+
+def _check_inside_room(name: str, xyz: Any, mp: Multipath, order: int) -> None:
+    if order == 0 or not (is_concrete(xyz) and is_concrete(mp.room)):
+        return
+    v = np.asarray(xyz, np.float64).reshape(-1, 3)
+    lo, hi = np.asarray(mp.room.lo, np.float64), np.asarray(mp.room.hi, np.float64)
+    out = ~(np.all(v >= lo - 1e-6, axis=1) & np.all(v <= hi + 1e-6, axis=1))
+    if out.any():
+        raise ValueError(
+            f"{name} must lie inside the room [{lo.tolist()}, {hi.tolist()}] of the image method; "
+            f"first outside: {v[np.argmax(out)].tolist()} (move the walls or set their reflection to 0)"
+        )
+
+
+def _check_poses(path: Any) -> None:
+    check_shape("path", path, (None, 4))
+    if np.shape(path)[0] < 1:
+        raise ValueError("path must hold at least one pose")
+    check_finite("path", path)
+    if is_concrete(path) and np.any(np.asarray(path)[:, 2] < 0):
+        raise ValueError("path z (the reader's height above the ground z = 0) must be ≥ 0")
+
+
+def _check_tags(tags: Any, name: str = "tags") -> None:
+    check_shape(name, tags, (None, 3))
+    if np.shape(tags)[0] < 1:
+        raise ValueError(f"{name} must hold at least one tag")
+    check_finite(name, tags)
+    if is_concrete(tags) and np.any(np.asarray(tags)[:, 2] < 0):
+        raise ValueError(f"{name} z (height above the ground z = 0) must be ≥ 0: a tag below the ground")
+
+
+def composite_channel(
+    path: Any,
+    tag: Any,
+    multipath: str | Multipath = "strong",
+    channel: ChannelParams = DEFAULT_CHANNEL,
+    wavelength: Any = None,
+    order: int = 2,
+    softness: Any = None,
+) -> CompositeChannel:
+    """``|h_mp|²`` and ``2 arg h_mp`` (module docstring) of ``tag [3]`` seen from ``path [T, 4]``: ``[T]`` each.
+
+    ``wavelength``: scalar or ``[T]`` (default ``channel.wavelength``).
+    """
+    mp = get_multipath(multipath)
+    _check_poses(path)
+    check_shape("tag", tag, (3,))
+    _check_tags(jnp.reshape(jnp.asarray(tag), (1, 3)), "tag")
+    uhf_rfid.validate_channel(channel)
+    lam = channel.wavelength if wavelength is None else wavelength
+    check_positive("wavelength", lam)
+    if np.ndim(lam) not in (0, 1) or (np.ndim(lam) == 1 and np.shape(lam)[0] != np.shape(path)[0]):
+        raise ValueError(f"wavelength must be a scalar or [T] = [{np.shape(path)[0]}], got shape {np.shape(lam)}")
+    image_sequences(order)  # validates order
+    seqs = image_sequences(_order_for(mp, order))
+    _check_inside_room("path", np.asarray(path)[:, :3] if is_concrete(path) else path, mp, len(seqs))
+    _check_inside_room("tag", tag, mp, len(seqs))
+    re, im, _ = _composite_jit(jnp.asarray(path), jnp.asarray(tag), jnp.asarray(lam), channel.antenna, mp.room, seqs, softness)
+    return CompositeChannel(re * re + im * im, wrap_angle(2.0 * jnp.arctan2(im, re)))
+
+
+_composite_jit = jax.jit(_composite, static_argnames=("seqs", "softness"))
+
+
+def expected_rssi(
+    path: Any,
+    tag: Any,
+    multipath: str | Multipath = "strong",
+    channel: ChannelParams = DEFAULT_CHANNEL,
+    wavelength: Any = None,
+    order: int = 2,
+) -> jax.Array:
+    """Noise-free mean RSSI ``E[y] = a·|h_mp|⁴·k(k+1)θ²`` (W) along ``path [T, 4]`` for ``tag [3]``: ``[T]``.
+
+    Under ``"light"`` this is :func:`jaxnav.models.uhf_rfid.mean_power`
+    (unimodal along a line); under ``"strong"`` it shows the wall fading dips.
+    """
+    mp = get_multipath(multipath)
+    cc = composite_channel(path, tag, mp, channel, wavelength, order)
+    lam = channel.wavelength if wavelength is None else wavelength
+    mean = uhf_rfid.mean_power(jnp.asarray(path), jnp.asarray(tag), channel, mp.gamma, wavelength=jnp.asarray(lam))
+    return mean * cc.power_ratio**2
+
+
+# --------------------------------------------------------------------------------------
+# Reads
+# --------------------------------------------------------------------------------------
+
+
+def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness):
+    """Reads of one tag at one step: ``[J]`` each."""
+    k_fade, k_phase, k_read = jax.random.split(key, 3)
+    a = uhf_rfid.power_scale(reader, tag, channel, softness=softness, wavelength=lam)
+    re, im, dist = _composite(reader, tag, lam, channel.antenna, mp.room, seqs, softness)
+    m2 = re * re + im * im
+    a_eff = a * m2 * m2
+    # a_eff = 0 (a tag or reader on the ground) gives y = 0, masked below; keep sample_rssi's input > 0
+    y = uhf_rfid.sample_rssi(k_fade, jnp.where(a_eff > 0, a_eff, 1.0), mp.gamma, (num_reads,))
+    y = jnp.where(a_eff > 0, y, 0.0)
+    eps = mp.phase_sigma * jax.random.normal(k_phase, (num_reads,), y.dtype)
+    phi = uhf_rfid.phase(dist, lam, offset + 2.0 * jnp.arctan2(im, re) + eps)
+    p_inc = jnp.sqrt(y * channel.tx_power / channel.tag_efficiency)
+    ok = (y > 0) & (y >= sens) & (p_inc >= tag_sens) & (jax.random.uniform(k_read, (num_reads,)) < p_read)
+    return (
+        jnp.broadcast_to(reader, (num_reads, 4)),
+        jnp.where(ok, y, MASKED_RSSI),
+        jnp.where(ok, phi, MASKED_PHASE),
+        jnp.full((num_reads,), lam, y.dtype),
+        ok,
+    )
+
+
+@partial(jax.jit, static_argnames=("num_reads", "seqs", "softness"))
+def _simulate(key, path, tags, offsets, tag_ids, lam_t, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness):
+    steps = jnp.arange(path.shape[0])
+
+    def per_tag(tid, tag, off):
+        k_tag = jax.random.fold_in(key, tid)
+
+        def per_step(t, reader, lam):
+            return _one(jax.random.fold_in(k_tag, t), reader, tag, off, lam, channel, mp, sens, tag_sens, p_read,
+                        num_reads, seqs, softness)
+
+        return jax.vmap(per_step)(steps, path, lam_t)
+
+    out = jax.vmap(per_tag)(tag_ids, tags, offsets)
+    return UHFReads(*out)
+
+
+def simulate_reads(
+    key: jax.Array,
+    path: Any,
+    tags: Any,
+    theta_offset: Any = None,
+    channel: ChannelParams = DEFAULT_CHANNEL,
+    multipath: str | Multipath = "light",
+    reads_per_step: int = 1,
+    wavelengths: Any = None,
+    sensitivity: Any = DEFAULT_SENSITIVITY,
+    tag_sensitivity: Any = DEFAULT_TAG_SENSITIVITY,
+    read_probability: Any = 1.0,
+    tag_ids: Any = None,
+    order: int = 2,
+    softness: Any = None,
+) -> UHFReads:
+    """RSSI and phase reads of ``G`` tags along a reader path: :class:`~jaxnav.models.uhf_rfid.UHFReads` ``[G, T, J]``.
+
+    Args:
+        key: PRNG key (module docstring, "Keys").
+        path: ``[T, 4]`` reader poses ``(x, y, z, ψ)`` (m, m, m, rad), ``z ≥ 0``
+            (:func:`line_path`, :func:`lawnmower_path`).
+        tags: ``[G, 3]`` tag positions (m), ``z ≥ 0``.
+        theta_offset: ``[G]`` phase offsets ``θ_off`` (rad); default 0.
+        channel: :class:`~jaxnav.models.uhf_rfid.ChannelParams`
+            (``channel.wavelength`` is the λ unless ``wavelengths`` is given).
+        multipath: ``"light"``, ``"strong"`` or a :class:`Multipath`.
+        reads_per_step: ``J`` read slots per step (all at the step's pose).
+        wavelengths: ``None``, one λ (m), or ``[C]`` λ's cycled over steps
+            (step ``t`` uses ``λ[t mod C]``; channel hopping).
+        sensitivity: reader sensitivity (W): reads with ``y`` below it are masked
+            (default −80 dBm).
+        tag_sensitivity: tag chip sensitivity (W of incident power, default −18 dBm).
+        read_probability: independent success probability of a read, in [0, 1].
+        tag_ids: ``[G]`` integer ids for the keys (default ``0 … G−1``); simulating
+            a subset with its ids reproduces the full run's reads of those tags.
+        order: image-method reflection order (0, 1 or 2; ignored without walls).
+        softness: antenna-gain relaxation (rad), see
+            :func:`jaxnav.models.uhf_rfid.antenna_gain`.
+
+    Returns:
+        ``UHFReads`` with ``reader [G, T, J, 4]``, ``rssi/phase/wavelength/mask
+        [G, T, J]``; masked slots hold :data:`MASKED_RSSI`, :data:`MASKED_PHASE`,
+        the true pose and λ. Jitted (same shapes, same ``order``/``J``: no retrace).
+    """
+    mp = get_multipath(multipath)
+    _check_poses(path)
+    _check_tags(tags)
+    uhf_rfid.validate_channel(channel)
+    num_reads = check_positive_int("reads_per_step", reads_per_step)
+    n_tags, n_steps = np.shape(tags)[0], np.shape(path)[0]
+    if theta_offset is None:
+        theta_offset = np.zeros(n_tags, np.float32)
+    check_shape("theta_offset", theta_offset, (n_tags,))
+    check_finite("theta_offset", theta_offset)
+    if tag_ids is None:
+        tag_ids = np.arange(n_tags, dtype=np.int32)
+    check_shape("tag_ids", tag_ids, (n_tags,))
+    if not np.issubdtype(np.result_type(tag_ids), np.integer):
+        raise ValueError(f"tag_ids must be integers, got dtype {np.result_type(tag_ids)}")
+    if wavelengths is None:
+        wavelengths = channel.wavelength
+    if np.ndim(wavelengths) > 1 or (np.ndim(wavelengths) == 1 and np.shape(wavelengths)[0] < 1):
+        raise ValueError(f"wavelengths must be one λ or a non-empty [C] array, got shape {np.shape(wavelengths)}")
+    check_positive("wavelengths", wavelengths)
+    check_nonnegative("sensitivity", sensitivity)
+    check_nonnegative("tag_sensitivity", tag_sensitivity)
+    check_shape("sensitivity", sensitivity, ())
+    check_shape("tag_sensitivity", tag_sensitivity, ())
+    check_shape("read_probability", read_probability, ())
+    if is_concrete(read_probability) and not 0.0 <= float(read_probability) <= 1.0:
+        raise ValueError(f"read_probability must be in [0, 1], got {float(read_probability)}")
+    if softness is not None:
+        check_positive("softness", softness)
+    image_sequences(order)  # validates order
+    seqs = image_sequences(_order_for(mp, order))
+    _check_inside_room("path", np.asarray(path)[:, :3] if is_concrete(path) else path, mp, len(seqs))
+    _check_inside_room("tags", tags, mp, len(seqs))
+
+    f32 = jnp.float32
+    lam = jnp.atleast_1d(jnp.asarray(wavelengths, f32))
+    lam_t = lam[jnp.arange(n_steps) % lam.shape[0]]
+    mp32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f32), mp)
+    ch32 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, f32), channel)
+    return _simulate(
+        key,
+        jnp.asarray(path, f32),
+        jnp.asarray(tags, f32),
+        jnp.asarray(theta_offset, f32),
+        jnp.asarray(tag_ids, jnp.int32),
+        lam_t,
+        ch32,
+        mp32,
+        jnp.asarray(sensitivity, f32),
+        jnp.asarray(tag_sensitivity, f32),
+        jnp.asarray(read_probability, f32),
+        num_reads,
+        seqs,
+        softness,
+    )
+
+
+def anchor_power_scale(reads: UHFReads, anchor: Any, channel: ChannelParams = DEFAULT_CHANNEL, softness: Any = None) -> jax.Array:
+    """The true ``a = P_T η_T G_R² G_T² L²`` (W) of every read slot of an anchor at the known ``anchor [3]``.
+
+    ``a`` is :func:`jaxnav.models.uhf_rfid.power_scale` at each read's reader pose
+    and wavelength; same shape as ``reads.rssi``. Feed it with the flattened
+    reads and mask to :func:`jaxnav.models.uhf_rfid.estimate_gamma` to fit
+    ``(k, θ)`` from the anchor ([A] §4.3.1). Under strong multipath the fit
+    absorbs the wall term ``|h_mp|⁴`` into ``(k, θ)``, as it does on real data.
+    """
+    uhf_rfid.validate_reads(reads)
+    check_shape("anchor", anchor, (3,))
+    return uhf_rfid.power_scale(
+        jnp.asarray(reads.reader), jnp.asarray(anchor), channel, softness=softness, wavelength=jnp.asarray(reads.wavelength)
+    )

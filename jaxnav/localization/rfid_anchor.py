@@ -195,9 +195,10 @@ def default_params(
     if phase_sigma is None:
         phase_sigma = U.DEFAULT_PHASE_SIGMA_FRACTION * float(np.asarray(channel.wavelength))
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    channel, gamma = U.read_model_float32(channel, gamma)
     p = RFIDAnchorParams(
-        channel=U.ChannelParams(*(f32(c) for c in channel[:4]), U.AntennaParams(*(f32(c) for c in channel.antenna))),
-        gamma=U.GammaParams(f32(gamma.k), f32(gamma.theta)),
+        channel=channel,
+        gamma=gamma,
         phase_sigma=f32(phase_sigma),
         anchors=f32(anchors),
         odometry_sd=f32(odometry_sd),
@@ -213,10 +214,7 @@ def default_params(
 def _validate_params(p: RFIDAnchorParams) -> None:
     if not isinstance(p, RFIDAnchorParams):
         raise ValueError(f"params must be an RFIDAnchorParams, got {type(p).__name__}")
-    U.validate_channel(p.channel)
-    U.validate_gamma(p.gamma)
-    check_shape("params.phase_sigma", p.phase_sigma, ())
-    check_positive("params.phase_sigma (σ_phase, m)", p.phase_sigma)
+    U.validate_read_model(p.channel, p.gamma, p.phase_sigma)
     check_shape("params.anchors", p.anchors, (None, 3))
     if np.shape(p.anchors)[0] < 1:
         raise ValueError("params.anchors must hold at least one anchor tag")

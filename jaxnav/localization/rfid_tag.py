@@ -184,10 +184,10 @@ def default_params(
     """
     if phase_sigma is None:
         phase_sigma = U.DEFAULT_PHASE_SIGMA_FRACTION * float(np.asarray(channel.wavelength))
+    channel, gamma = U.read_model_float32(channel, gamma)
     p = RFIDTagParams(
-        channel=U.ChannelParams(*(jnp.asarray(c, jnp.float32) for c in channel[:4]),
-                                U.AntennaParams(*(jnp.asarray(c, jnp.float32) for c in channel.antenna))),
-        gamma=U.GammaParams(jnp.asarray(gamma.k, jnp.float32), jnp.asarray(gamma.theta, jnp.float32)),
+        channel=channel,
+        gamma=gamma,
         phase_sigma=jnp.asarray(phase_sigma, jnp.float32),
         box_lo=jnp.asarray(box_lo, jnp.float32),
         box_hi=jnp.asarray(box_hi, jnp.float32),
@@ -200,10 +200,7 @@ def default_params(
 def _validate_params(params: RFIDTagParams) -> None:
     if not isinstance(params, RFIDTagParams):
         raise ValueError(f"params must be an RFIDTagParams, got {type(params).__name__}")
-    U.validate_channel(params.channel)
-    U.validate_gamma(params.gamma)
-    check_shape("params.phase_sigma", params.phase_sigma, ())
-    check_positive("params.phase_sigma (σ_phase, m)", params.phase_sigma)
+    U.validate_read_model(params.channel, params.gamma, params.phase_sigma)
     check_shape("params.box_lo", params.box_lo, (3,))
     check_shape("params.box_hi", params.box_hi, (3,))
     check_finite("params.box_lo", params.box_lo)

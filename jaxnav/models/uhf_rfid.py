@@ -179,6 +179,8 @@ __all__ = [
     "UHFReads",
     "validate_reads",
     "read_log_likelihood",
+    "read_model_float32",
+    "validate_read_model",
     "dbm_to_watt",
     "watt_to_dbm",
     "db_to_linear",
@@ -782,6 +784,21 @@ def log_w_phase(phi_meas: Any, phi_pred: Any, sigma: Any, wavelength: Any = DEFA
     diff = wrap_angle(jnp.asarray(phi_meas) - jnp.asarray(phi_pred))
     r = jnp.asarray(wavelength) / (4.0 * jnp.pi) * diff / jnp.asarray(sigma)
     return -0.5 * r * r - jnp.log(jnp.asarray(sigma)) - 0.5 * math.log(_TWO_PI)
+
+
+def read_model_float32(channel: ChannelParams, gamma: GammaParams) -> tuple[ChannelParams, GammaParams]:
+    """``(channel, gamma)`` with every leaf a float32 array (a filter's differentiable params)."""
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return (ChannelParams(*(f32(c) for c in channel[:4]), AntennaParams(*(f32(c) for c in channel.antenna))),
+            GammaParams(f32(gamma.k), f32(gamma.theta)))
+
+
+def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any, prefix: str = "params") -> None:
+    """Host-side checks of the parameters :func:`read_log_likelihood` takes (σ_phase a positive scalar, m)."""
+    validate_channel(channel)
+    validate_gamma(gamma)
+    check_shape(f"{prefix}.phase_sigma", phase_sigma, ())
+    check_positive(f"{prefix}.phase_sigma (σ_phase, m)", phase_sigma)
 
 
 def read_log_likelihood(

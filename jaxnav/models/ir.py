@@ -114,6 +114,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxnav.core.optim import lbfgs_minimize
 from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
 
 __all__ = [
@@ -761,15 +762,7 @@ def _fit_impl(e, v, init, steps):
 
     # backtracking (Armijo) line search: as reliable here as the default zoom search and
     # three times cheaper to compile
-    opt = optax.lbfgs(linesearch=optax.scale_by_backtracking_linesearch(max_backtracking_steps=20))
-
-    def body(carry, _):
-        b, st = carry
-        val, g = jax.value_and_grad(loss)(b)
-        upd, st = opt.update(g, st, b, value=val, grad=g, value_fn=loss)
-        return (optax.apply_updates(b, upd), st), None
-
-    (b, _), _ = jax.lax.scan(body, (b, opt.init(b)), None, length=steps)
+    b = lbfgs_minimize(loss, b, steps, optax.scale_by_backtracking_linesearch(max_backtracking_steps=20))
     rms = jnp.sqrt(loss(b))
     c2 = b[2] / (s * s)
     c1 = b[1] / s - 2.0 * b[2] * mu / (s * s)

@@ -151,6 +151,7 @@ import numpy as np
 import optax
 from jax.scipy.special import gammaln
 
+from jaxnav.core.optim import lbfgs_minimize
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -947,15 +948,7 @@ def _ml(reads, a, mask, init, steps):
     # zoom line search (optax's default): its curvature condition uses gradients, which
     # keeps refining where float32 can no longer resolve loss decreases (backtracking
     # stalls at ~1e-3 relative error in k; zoom reaches ~1e-5)
-    opt = optax.lbfgs(linesearch=optax.scale_by_zoom_linesearch(max_linesearch_steps=20))
-
-    def body(carry, _):
-        p, st = carry
-        val, g = jax.value_and_grad(loss)(p)
-        upd, st = opt.update(g, st, p, value=val, grad=g, value_fn=loss)
-        return (optax.apply_updates(p, upd), st), None
-
-    (p, _), _ = jax.lax.scan(body, (p0, opt.init(p0)), None, length=steps)
+    p = lbfgs_minimize(loss, p0, steps, optax.scale_by_zoom_linesearch(max_linesearch_steps=20))
     return GammaParams(jnp.exp(p[0]), jnp.exp(p[1] + log_ubar)), n
 
 

@@ -94,6 +94,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core.validation import check_finite, check_positive_int, check_shape
+from jaxnav.io._data import ENV_VAR, find_dataset
 from jaxnav.metrics import TrajectoryError, position_errors, trajectory_rmse  # re-exported: scoring lives in jaxnav.metrics
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
@@ -121,12 +122,8 @@ __all__ = [
 DATASET = "utias-mrclam-dataset7"
 """Name of the dataset folder inside the data folder."""
 
-ENV_VAR = "JAXNAV_DATA"
-"""Environment variable naming the data folder (the parent of :data:`DATASET`)."""
 
 NUM_ROBOTS = 5  # MRCLAM robots are subjects 1..5
-_REPO_ROOT = Path(__file__).resolve().parents[2]
-_DEFAULT_RELATIVE = Path("..") / "shared" / "data"
 
 
 # ---------------------------------------------------------------------------
@@ -257,15 +254,6 @@ class MRCLAMSequence(NamedTuple):
     num_outside_window: int
 
 
-def _candidates(root: str | os.PathLike | None) -> list[Path]:
-    if root is not None:
-        return [Path(root)]
-    env = os.environ.get(ENV_VAR)
-    if env:
-        return [Path(env)]
-    return [Path.cwd() / _DEFAULT_RELATIVE, _REPO_ROOT / _DEFAULT_RELATIVE]
-
-
 def data_dir(root: str | os.PathLike | None = None) -> Path:
     """The dataset folder ``<data>/utias-mrclam-dataset7``.
 
@@ -277,15 +265,11 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
     Raises:
         FileNotFoundError: naming the paths tried and the environment variable.
     """
-    tried = []
-    for base in _candidates(root):
-        for folder in (base / DATASET, base):
-            if (folder / "Barcodes.dat").is_file() and (folder / "Landmark_Groundtruth.dat").is_file():
-                return folder.resolve()
-        tried.append(str((base / DATASET).resolve()))
-    raise FileNotFoundError(
-        f"UTIAS MRCLAM Dataset 7 not found at {' or '.join(tried)}. Pass root=<folder holding "
-        f"{DATASET}/> or set the environment variable {ENV_VAR} to it."
+    return find_dataset(
+        root,
+        DATASET,
+        lambda folder: (folder / "Barcodes.dat").is_file() and (folder / "Landmark_Groundtruth.dat").is_file(),
+        "UTIAS MRCLAM Dataset 7",
     )
 
 

@@ -1,4 +1,4 @@
-"""The ``jaxnav`` command line: ``--version``, ``demo``, ``mrclam``, ``hf-slam``, ``ir``, ``experiments``."""
+"""The ``jaxnav`` command line: ``--version``, ``demo``, ``mrclam``, ``hf-slam``, ``ir``, ``uhf-real``, ``experiments``."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ _HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 _HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 _IR_LAYOUTS = ("proposed", "unique-11")
 _IR_DRIVES = ("spots", "loop", "rotation")
+_UHF_WEIGHTINGS = ("combined", "rssi", "phase")
 
 
 def _write_plot(draw, path: str) -> None:
@@ -159,6 +160,32 @@ def _cmd_ir(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_uhf_real(args: argparse.Namespace) -> int:
+    from jaxnav.experiments import uhf_real as xp
+    from jaxnav.io import adarf
+
+    weightings = tuple(w for w in args.weightings.split(",") if w)
+    try:
+        setting = xp.RealSetting(num_particles=args.particles, reads_per_channel=args.reads_per_channel,
+                                 phase_sigma_fraction=args.phase_sigma)
+        names = adarf.available_experiments(args.data) if args.experiment == "all" else (args.experiment,)
+        print(f"jaxnav {__version__} uhf-real: [A] Alg. 6 in 2D on the AdaRF reads ({adarf.data_dir(args.data)}), "
+              f"{setting.num_particles} particles, {setting.reads_per_channel} read(s) per channel and point, "
+              f"σ_phase = {setting.phase_sigma_fraction:g} λ, {args.seeds} seed(s) from {args.seed}")
+        results = []
+        for name in names:
+            res = xp.localize(name, weightings, setting, seeds=args.seeds, seed=args.seed, root=args.data)
+            results.append(res)
+            print(xp.format_results(res), flush=True)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"jaxnav uhf-real: {err}", file=sys.stderr)
+        return 2
+    if args.out:
+        for name, res in zip(names, results):
+            _write_plot(lambda path, res=res: xp.plot_results(res, path), f"{args.out}-{name}.png")
+    return 0
+
+
 def _cmd_experiments(args: argparse.Namespace) -> int:
     import jax
 
@@ -238,7 +265,19 @@ def build_parser() -> argparse.ArgumentParser:
     irp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
     irp.set_defaults(func=_cmd_ir)
-    xp = sub.add_parser("experiments", help="reproduce [W]'s tables and figures with batch Monte Carlo")
+    ur = sub.add_parser("uhf-real", help="localise the three tags of the AdaRF real UHF-RFID reads ([A] Alg. 6, 2D)")
+    ur.add_argument("--experiment", default="181218-01-50-8", help="AdaRF experiment folder, or 'all' (default 181218-01-50-8)")
+    ur.add_argument("--weightings", default=",".join(_UHF_WEIGHTINGS),
+                    help=f"comma-separated subset of {','.join(_UHF_WEIGHTINGS)} (default all)")
+    ur.add_argument("--particles", type=int, default=5000, help="particles (default 5000)")
+    ur.add_argument("--reads-per-channel", type=int, default=1, help="reads of each of the 8 channels per aperture point (default 1)")
+    ur.add_argument("--phase-sigma", type=float, default=0.1, help="σ_phase as a fraction of λ (default 0.1)")
+    ur.add_argument("--seeds", type=int, default=1, help="seeded runs per tag and weighting (default 1)")
+    ur.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    ur.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
+    ur.add_argument("--out", default="jaxnav-uhf-real", help="PNG prefix ('' for none; default jaxnav-uhf-real)")
+    ur.set_defaults(func=_cmd_uhf_real)
+    xp = sub.add_parser("experiments", help="reproduce [W]'s and [A]'s tables and figures with batch Monte Carlo")
     xp.add_argument("action", choices=("list", "run"), help="list the experiments, or run one")
     xp.add_argument("name", nargs="?", help="experiment name (see 'list')")
     xp.add_argument("--runs", type=int, default=20, help="seeded runs per setting (default 20)")

@@ -87,3 +87,44 @@ def test_experiments_list_names_the_ir_experiments(tmp_path):
     assert out.returncode == 0
     for name in ("table-5.2", "table-5.3", "ir-failure", "ir-speeds", "ir-rotation"):
         assert name in out.stdout
+
+
+def test_uhf_real_weightings_match_the_filter():
+    from jaxnav.cli import _UHF_WEIGHTINGS
+    from jaxnav.localization.rfid_tag import WEIGHTINGS
+
+    assert _UHF_WEIGHTINGS == WEIGHTINGS
+
+
+@pytest.fixture
+def adarf_dir():
+    from jaxnav.io import adarf
+
+    try:
+        return str(adarf.data_dir())
+    except FileNotFoundError as err:
+        pytest.skip(f"the AdaRF data are not available: {err}")
+
+
+def test_uhf_real_localizes_the_real_tags(tmp_path, adarf_dir):
+    """``jaxnav uhf-real``: a row per tag, errors under the prior's spread, a PNG."""
+    pytest.importorskip("matplotlib")
+    out = _jaxnav("uhf-real", "--weightings", "phase", "--particles", "2000", "--data", adarf_dir,
+                  "--out", str(tmp_path / "u"), cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    rows = [line.split() for line in out.stdout.splitlines() if line.startswith("181218-01-50-8")]
+    assert [r[1] for r in rows] == ["0", "1", "2"]
+    for r in rows:
+        assert float(r[3]) < float(r[8]), out.stdout  # final error below the uniform guess's RMS error
+    assert (tmp_path / "u-181218-01-50-8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--weightings", "loud"), "weighting"),
+    (("--particles", "0"), "num_particles"),
+    (("--experiment", "no-such"), "unknown experiment"),
+])
+def test_uhf_real_rejects_bad_arguments(tmp_path, adarf_dir, args, message):
+    out = _jaxnav("uhf-real", *args, "--data", adarf_dir, "--out", "", cwd=tmp_path)
+    assert out.returncode == 2
+    assert message in out.stderr

@@ -444,8 +444,11 @@ def validate_reads(reads: UHFReads, name: str = "reads") -> None:
             raise ValueError(f"{name}.{field} must have the mask's shape {shape}, got {np.shape(getattr(reads, field))}")
     if np.shape(reads.reader) != shape + (4,):
         raise ValueError(f"{name}.reader must have shape {shape + (4,)}, got {np.shape(reads.reader)}")
-    if np.result_type(getattr(reads.mask, "dtype", np.asarray(reads.mask).dtype)) != np.bool_:
-        raise ValueError(f"{name}.mask must be boolean, got {np.result_type(reads.mask)}")
+    mask_dtype = getattr(reads.mask, "dtype", None)  # a tracer has a dtype but no value
+    if mask_dtype is None:
+        mask_dtype = np.asarray(reads.mask).dtype
+    if np.result_type(mask_dtype) != np.bool_:
+        raise ValueError(f"{name}.mask must be boolean, got {mask_dtype}")
     if not is_concrete(reads):
         return
     m = np.asarray(reads.mask)

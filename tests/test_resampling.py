@@ -440,6 +440,40 @@ def test_gaussian_refresh_collapsed_cloud_has_no_nan(jitter, getkey):
     assert np.all(np.abs(diff) < 6 * math.sqrt(jitter) + (n + 2) * EPS32 * np.abs(point).max())
 
 
+def test_kernel_refresh_keeps_two_modes_where_the_gaussian_merges_them(getkey):
+    """Two clusters at x = ±5 (sd 0.1). The kernel refresh moves each particle by N(0, h²Σ) with
+    h = 0.37 (Silverman, N = 2000, d = 2) and Σ_xx ≈ 25: displacement sd ≈ 1.85, so most particles
+    stay on their cluster's side and few land in |x| < 2.5. [A]'s one Gaussian N(0, 25) (negative
+    control) puts ~38 % of the set there."""
+    n = 2000
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(-5, 0.1, (n // 2, 2)), rng.normal(5, 0.1, (n // 2, 2))]).astype(np.float32)
+    h = R.silverman_bandwidth(n, 2)
+    assert h == pytest.approx((4 / (n * 4)) ** (1 / 6))
+    kern = np.asarray(R.kernel_refresh(getkey(), jnp.asarray(x)))
+    gauss = np.asarray(R.gaussian_refresh(getkey(), jnp.asarray(x)))
+    # the kernel adds N(0, h² Σ) to each particle: displacement sd h·5.0 along x (Σ_xx ≈ 25)
+    disp = kern[:, 0] - x[:, 0]
+    assert np.std(disp) == pytest.approx(h * np.std(x[:, 0]), rel=0.1)  # MC: sd of an sd estimate ~1.6 %
+    assert np.mean(np.sign(kern[:, 0]) == np.sign(x[:, 0])) > 0.7
+    middle_k = np.mean(np.abs(kern[:, 0]) < 2.5)
+    middle_g = np.mean(np.abs(gauss[:, 0]) < 2.5)
+    # kernel: P(|N(±5, (1.85)²)| < 2.5) ≈ 0.09; Gaussian N(0, 25): P(|x| < 2.5) ≈ 0.38
+    assert middle_k < 0.15 < 0.3 < middle_g
+
+
+def test_refresh_option_of_conditional_resample(getkey):
+    x = jnp.asarray(np.random.default_rng(1).normal(size=(500, 2)), jnp.float32)
+    lw = jnp.full((500,), -jnp.inf).at[:3].set(0.0)  # three survivors: resampling happens
+    for refresh in (False, True, "gaussian", "kernel"):
+        res = R.conditional_resample(getkey(), x, lw, threshold=0.5, refresh=refresh)
+        assert bool(res.resampled)
+        distinct = np.unique(np.asarray(res.particles), axis=0).shape[0]
+        assert distinct == (3 if refresh is False else 500), refresh
+    with pytest.raises(ValueError, match="refresh"):
+        R.conditional_resample(getkey(), x, lw, refresh="roughen")
+
+
 @pytest.mark.parametrize("scheme", ["systematic", "stratified"])
 def test_copy_ancestors_in_place_equals_take(scheme):
     """For the sorted ancestors of systematic/stratified resampling the in-place row copy

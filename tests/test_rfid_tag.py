@@ -206,6 +206,7 @@ def test_likelihood_gradients_are_finite(params):
     (dict(weighting="rss"), "weighting"),
     (dict(ess_threshold=0.0), "ess_threshold"),
     (dict(num_particles=0), "num_particles"),
+    (dict(refresh="roughen"), "refresh"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):

@@ -23,7 +23,8 @@ uniformly.
 
 :func:`conditional_resample` applies a scheme only when the ESS falls below a
 fraction of N, decided independently for every run when vmapped;
-:func:`gaussian_refresh` is the Gaussian approximation of [A] §4.3.3.
+:func:`gaussian_refresh` is the Gaussian approximation of [A] §4.3.3;
+:func:`kernel_refresh` is the regularised alternative that keeps several modes.
 """
 
 from __future__ import annotations
@@ -49,6 +50,9 @@ __all__ = [
     "ResampleResult",
     "conditional_resample",
     "gaussian_refresh",
+    "kernel_refresh",
+    "silverman_bandwidth",
+    "REFRESHES",
     "copy_ancestors_in_place",
     "SORTED_SCHEMES",
 ]
@@ -237,6 +241,31 @@ class ResampleResult(NamedTuple):
     resampled: jax.Array
 
 
+REFRESHES = ("gaussian", "kernel")
+"""What :func:`conditional_resample` may redraw the resampled set from (``refresh=``)."""
+
+
+def _fitted_cholesky(particles, log_weights, angle_dims, jitter):
+    """Mean and a Cholesky factor of the covariance of ``particles [N, D]`` (diagonal if the factorisation fails)."""
+    n, d = particles.shape
+    if log_weights is None:
+        log_weights = jnp.zeros((n,), particles.dtype)
+    mean = _w.particle_mean(particles, log_weights, angle_dims)
+    cov = _w.weighted_cov(particles, log_weights, angle_dims, mean)
+    cov = 0.5 * (cov + cov.T) + jitter * jnp.eye(d, dtype=cov.dtype)
+    chol = jnp.linalg.cholesky(cov)
+    # A failed factorisation (NaN) falls back to the diagonal standard deviations.
+    diag_chol = jnp.diag(jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0)))
+    return mean, jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
+
+
+def _wrap_angles(x, angle_dims):
+    if not angle_dims:
+        return x
+    mask = jnp.zeros((x.shape[-1],), bool).at[jnp.asarray(angle_dims)].set(True)
+    return jnp.where(mask, _w.wrap_angle(x), x)
+
+
 def gaussian_refresh(
     key: jax.Array,
     particles: jax.Array,
@@ -251,23 +280,44 @@ def gaussian_refresh(
     lines 21–22). ``angle_dims`` are averaged on the circle and wrapped back
     to ``[-π, π)``. ``jitter`` (in the particles' squared units) is added to
     the diagonal so that a collapsed cloud still has a Cholesky factor.
+    One Gaussian keeps one mode: see :func:`kernel_refresh` for a set with several.
     """
     n, d = particles.shape
-    if log_weights is None:
-        log_weights = jnp.zeros((n,), particles.dtype)
-    mean = _w.particle_mean(particles, log_weights, angle_dims)
-    cov = _w.weighted_cov(particles, log_weights, angle_dims, mean)
-    cov = 0.5 * (cov + cov.T) + jitter * jnp.eye(d, dtype=cov.dtype)
-    chol = jnp.linalg.cholesky(cov)
-    # A failed factorisation (NaN) falls back to the diagonal standard deviations.
-    diag_chol = jnp.diag(jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0)))
-    chol = jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
+    mean, chol = _fitted_cholesky(particles, log_weights, angle_dims, jitter)
     eps = jax.random.normal(key, (n, d), particles.dtype)
-    new = mean + eps @ chol.T
-    if angle_dims:
-        mask = jnp.zeros((d,), bool).at[jnp.asarray(angle_dims)].set(True)
-        new = jnp.where(mask, _w.wrap_angle(new), new)
-    return new
+    return _wrap_angles(mean + eps @ chol.T, angle_dims)
+
+
+def silverman_bandwidth(n: int, d: int) -> float:
+    """``h = (4 / (N (d + 2)))^{1/(d+4)}``: the kernel width (in units of the set's spread) that minimises the
+    mean integrated squared error for a Gaussian density (Silverman 1986, eq. 4.14; Musso, Oudjane & Le Gland
+    2001, the regularised particle filter). 0.37 for N = 2000, d = 4."""
+    return float((4.0 / (n * (d + 2.0))) ** (1.0 / (d + 4.0)))
+
+
+def kernel_refresh(
+    key: jax.Array,
+    particles: jax.Array,
+    log_weights: jax.Array | None = None,
+    angle_dims: tuple[int, ...] = (),
+    bandwidth: float | None = None,
+    jitter: float = 1e-9,
+) -> jax.Array:
+    """Move every particle by ``h · L ε``, ``ε ~ N(0, I)``, ``L Lᵀ = Σ`` of the set: the regularised particle filter.
+
+    Like :func:`gaussian_refresh` it breaks up the duplicates of a static
+    target, but it draws from a Gaussian *kernel density* of the resampled set
+    (each particle a kernel of covariance ``h² Σ``) instead of one Gaussian, so
+    a posterior with several modes keeps them until the reads decide between
+    them. [A] §4.3.3 lowers the resampling threshold because its one Gaussian
+    cannot hold the early multimodal posterior; this removes that failure.
+    ``bandwidth`` ``h`` defaults to :func:`silverman_bandwidth`. Not [A]'s method.
+    """
+    n, d = particles.shape
+    h = silverman_bandwidth(n, d) if bandwidth is None else bandwidth
+    _, chol = _fitted_cholesky(particles, log_weights, angle_dims, jitter)
+    eps = jax.random.normal(key, (n, d), particles.dtype)
+    return _wrap_angles(particles + h * (eps @ chol.T), angle_dims)
 
 
 def conditional_resample(
@@ -276,7 +326,7 @@ def conditional_resample(
     log_weights: jax.Array,
     threshold: float | jax.Array = 0.5,
     scheme: str | Resampler = "systematic",
-    refresh: bool = False,
+    refresh: bool | str = False,
     angle_dims: tuple[int, ...] = (),
     normalized: bool = False,
 ) -> ResampleResult:
@@ -290,8 +340,10 @@ def conditional_resample(
             (ESS ≤ N always, and a uniform set is resampled too). [A] §4.3.3
             advises a low value for static targets refreshed by a Gaussian.
         scheme: a name in :data:`SCHEMES` or a resampler function.
-        refresh: after resampling, redraw from the Gaussian fitted to the
-            resampled set ([A] §4.3.3). Only for array particles ``[N, D]``.
+        refresh: after resampling, redraw the set: ``True`` or ``"gaussian"``
+            from the Gaussian fitted to it ([A] §4.3.3, :func:`gaussian_refresh`),
+            ``"kernel"`` from its kernel density (:func:`kernel_refresh`);
+            ``False`` keeps the duplicates. Only for array particles ``[N, D]``.
         angle_dims: components averaged on the circle by the refresh.
         normalized: promise that ``log_weights`` are already normalised (as
             :func:`jaxnav.core.weights.normalize` returns them), which saves
@@ -301,6 +353,8 @@ def conditional_resample(
     per-run select, so every run decides for itself. A Python threshold
     ≥ 1 is decided when tracing: no branch at all.
     """
+    if not (isinstance(refresh, bool) or refresh in REFRESHES):
+        raise ValueError(f"refresh must be True, False or one of {REFRESHES}, got {refresh!r}")
     resampler = get_resampler(scheme) if isinstance(scheme, str) else scheme
     lw = log_weights if normalized else _w.normalize(log_weights).log_weights
     n = lw.shape[0]
@@ -312,7 +366,9 @@ def conditional_resample(
     def _resample():
         idx = scheme_p(k_res, lw, p, n) if scheme_p is not None else resampler(k_res, lw, n)
         new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), particles)
-        if refresh:
+        if refresh == "kernel":
+            new = kernel_refresh(k_ref, new, None, angle_dims)
+        elif refresh:
             new = gaussian_refresh(k_ref, new, None, angle_dims)
         return new, uniform, idx
 

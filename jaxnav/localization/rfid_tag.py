@@ -99,8 +99,13 @@ class RFIDTagConfig:
         weighting: one of :data:`WEIGHTINGS`.
         ess_threshold: resample when ESS < ``ess_threshold · M``, in (0, 1].
             [A] §4.3.3: well below the usual 0.5; default 0.1 (ours).
-        refresh: redraw the resampled set from its Gaussian ([A] §4.3.3,
-            Alg. 6 line 22); False keeps plain systematic resampling.
+        refresh: how the resampled set is redrawn. ``True`` / ``"gaussian"``:
+            from its Gaussian ([A] §4.3.3, Alg. 6 line 22). ``"kernel"``: every
+            particle moves by a kernel of covariance ``h² Σ`` (the regularised
+            particle filter, :func:`jaxnav.core.resampling.kernel_refresh`; ours,
+            not [A]'s), which keeps the early posterior's modes; the
+            ``uhf-refresh`` experiment compares the two. ``False`` keeps plain
+            systematic resampling.
         antenna_softness: optional logistic relaxation (rad) of the antenna
             pattern's steps (:func:`jaxnav.models.uhf_rfid.antenna_gain`), for
             gradients with respect to positions; None is [A]'s stepped model.
@@ -110,7 +115,7 @@ class RFIDTagConfig:
     dims: int = 3
     weighting: str = "combined"
     ess_threshold: float = 0.1
-    refresh: bool = True
+    refresh: bool | str = True
     antenna_softness: float | None = None
 
     def __post_init__(self) -> None:
@@ -119,6 +124,8 @@ class RFIDTagConfig:
             raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
         check_choice("weighting", self.weighting, WEIGHTINGS)
         check_fraction("ess_threshold", self.ess_threshold)
+        if not isinstance(self.refresh, bool):
+            check_choice("refresh", self.refresh, resampling.REFRESHES)
         if self.antenna_softness is not None:
             check_positive("antenna_softness", self.antenna_softness)
 

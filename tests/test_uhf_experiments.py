@@ -31,7 +31,7 @@ from jaxnav.sim import uhf_reader as S
 RUNS = 4
 NAMES = ("fig-5.3", "fig-5.5")  # run end to end; fig-5.6 see the module docstring
 ROW_KEYS = {"setting", "method", "time_s", "rmse_m", "final_rmse_m"}
-SETTING_KEYS = {"multipath", "dims", "anchor_distance_m", "anchor_distance_lambda"}
+SETTING_KEYS = {"multipath", "dims", "anchor_distance_m", "anchor_distance_lambda", "refresh"}
 
 
 @pytest.fixture(scope="module")

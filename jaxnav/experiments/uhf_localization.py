@@ -92,6 +92,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.resampling import REFRESHES
 from jaxnav.core.validation import check_choice, check_nonnegative, check_positive, check_positive_int
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.registry import Cell, Experiment, register
@@ -157,6 +158,8 @@ class UHFSetting:
             ``2 m / (steps_per_pass − 1)``).
         speed: reader speed (m/s): the step period is spacing / speed.
         margin: the tag is drawn this far (m) inside the search box.
+        refresh: Alg. 6's redraw after resampling: ``"gaussian"`` ([A] §4.3.3) or
+            ``"kernel"`` (the regularised filter, ours; see ``uhf-refresh``).
     """
 
     multipath: str = "light"
@@ -166,9 +169,11 @@ class UHFSetting:
     steps_per_pass: int = 51
     speed: float = SPEED
     margin: float = MARGIN
+    refresh: str = "gaussian"
 
     def __post_init__(self) -> None:
         check_choice("multipath", self.multipath, MULTIPATHS)
+        check_choice("refresh", self.refresh, REFRESHES)
         if self.dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
         check_nonnegative("anchor_distance", self.anchor_distance)
@@ -296,8 +301,8 @@ def _error(estimate: jax.Array, tag: jax.Array, dims: int) -> jax.Array:
 
 
 @functools.lru_cache(maxsize=None)
-def run_once(weightings: tuple[str, ...], dims: int, num_particles: int):
-    """``(key, inputs: UHFInputs) -> {field: array}`` of one seeded run (cached: one function per triple).
+def run_once(weightings: tuple[str, ...], dims: int, num_particles: int, refresh: str = "gaussian"):
+    """``(key, inputs: UHFInputs) -> {field: array}`` of one seeded run (cached: one function per arguments).
 
     Fields: ``err_<weighting>`` ``[T]`` position error over time (m) for each of
     ``weightings``; ``gamma_k``, ``gamma_theta`` the anchor's fit and
@@ -307,7 +312,9 @@ def run_once(weightings: tuple[str, ...], dims: int, num_particles: int):
     weightings = tuple(weightings)
     for w in weightings:
         check_choice("weighting", w, METHODS)
-    configs = [rt.RFIDTagConfig(num_particles=int(num_particles), dims=int(dims), weighting=w) for w in weightings]
+    check_choice("refresh", refresh, REFRESHES)
+    configs = [rt.RFIDTagConfig(num_particles=int(num_particles), dims=int(dims), weighting=w,
+                                refresh=True if refresh == "gaussian" else refresh) for w in weightings]
 
     def fn(key: jax.Array, inputs: UHFInputs) -> dict:
         scene, fit, tag_reads, traces = _simulate_and_filter(key, inputs, configs)
@@ -404,12 +411,13 @@ FIG_5_3_NOTE = (f"[A] Fig. 5.3 gives no numbers: the RMSE grows with the anchor-
 
 def _setting_json(s: UHFSetting) -> dict:
     return {"multipath": s.multipath, "dims": s.dims, "anchor_distance_m": round(s.anchor_distance, 6),
-            "anchor_distance_lambda": round(s.anchor_distance / WAVELENGTH, 4)}
+            "anchor_distance_lambda": round(s.anchor_distance / WAVELENGTH, 4), "refresh": s.refresh}
 
 
 def _label(setting: dict) -> str:
+    refresh = setting.get("refresh", "gaussian")
     return (f"{setting['multipath']}, {setting['dims']}D, anchor {setting['anchor_distance_m']:.3g} m "
-            f"({setting['anchor_distance_lambda']:.2g} λ)")
+            f"({setting['anchor_distance_lambda']:.2g} λ)" + ("" if refresh == "gaussian" else f", {refresh} refresh"))
 
 
 # ---------------------------------------------------------------------------
@@ -476,6 +484,7 @@ def markdown_table(result: dict) -> str:
 
 
 _COLORS = {"rssi": "tab:red", "phase": "tab:blue", "combined": "tab:green"}
+_KERNEL_COLOR = "tab:purple"
 
 
 def _band(ax, r, color, label):
@@ -498,9 +507,11 @@ def plot_curves(result: dict, path: str) -> None:
     for ax, mp in zip(axes[0], panels):
         rows = [r for r in result["rows"] if r["setting"]["multipath"] == mp]
         for r in rows:
-            c = _COLORS[r["method"]]
+            refresh = r["setting"].get("refresh", "gaussian")
+            c = _COLORS[r["method"]] if refresh == "gaussian" else _KERNEL_COLOR
             f = r["final_rmse_m"]
-            _band(ax, r, c, f"{r['method']} (final {f['mean']:.2f} m)")
+            name = r["method"] if refresh == "gaussian" else f"{r['method']}, {refresh} refresh"
+            _band(ax, r, c, f"{name} (final {f['mean']:.2f} m)")
             if f["paper"] is not None:
                 ax.axhline(f["paper"], color=c, ls="--", lw=1.0, alpha=0.8)
         dims = rows[0]["setting"]["dims"]
@@ -607,8 +618,10 @@ def _experiment(name: str, title: str, settings: Sequence[UHFSetting], methods: 
         for s in chosen:
             s = replace(s, **QUICK) if quick else s
             weightings = tuple(quick_weightings) if quick and quick_weightings else methods
-            fn = run_once(weightings, s.dims, s.num_particles)
-            cid = f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}"
+            fn = run_once(weightings, s.dims, s.num_particles, s.refresh)
+            # [A]'s Gaussian cells keep the ids of fig-5.5/5.6 (so the same seeded runs): common random numbers
+            cid = f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}" + (
+                "" if s.refresh == "gaussian" else f"|refresh={s.refresh}")
             out.append(Cell(cid, cid, "+".join(methods), s, fn, (run_inputs(s),)))
         return out
 
@@ -654,4 +667,16 @@ _experiment(
     [UHFSetting(multipath=m, dims=2) for m in MULTIPATHS],
     METHODS, lambda s, w: PAPER[(s.multipath, s.dims, w)], plot_curves,
     f"Anchor {CLOSE_ANCHOR} m from the tag; the filter knows the tag's height, the error is over x, y. " + _COMMON_NOTES,
+)
+
+_experiment(
+    "uhf-refresh", "Ours, not [A]'s: Alg. 6 combined in 3D with [A]'s Gaussian refresh against a kernel (regularised) "
+    "refresh, light and strong multipath",
+    [UHFSetting(multipath=m, dims=3, refresh=r) for m in MULTIPATHS for r in REFRESHES],
+    ("combined",), lambda s, w: PAPER[(s.multipath, s.dims, w)], plot_curves,
+    f"Anchor {CLOSE_ANCHOR} m from the tag. The Gaussian cells are fig-5.5's combined curves (same cell ids, same "
+    "seeded runs). The kernel refresh moves every resampled particle by h L eps (L L^T the set's covariance, h = "
+    "Silverman's bandwidth, 0.37 for 2000 particles in 4 dimensions: jaxnav.core.resampling.kernel_refresh) instead "
+    "of redrawing the whole set from one Gaussian, so the early multimodal posterior keeps its modes. "
+    + _COMMON_NOTES,
 )

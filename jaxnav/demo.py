@@ -71,9 +71,6 @@ def run_demo(seed: int = 0, num_steps: int = 120, num_particles: int = 1000) -> 
 
 def plot_demo(result: DemoResult, path: str) -> str:
     """Write a PNG of the true and estimated paths and the error over time; returns ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1, 1.3]})

@@ -80,9 +80,6 @@ def markdown_curves(result: dict) -> str:
 
 
 def plot_curves(result: dict, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     quantities = sorted({c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q))

@@ -343,9 +343,6 @@ def format_errors(rows: list[tuple[str, Any]]) -> str:
 
 def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:
     """Path and map (left), robot error over time (middle), tag error against detections (right); a PNG at ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     run = world.run

@@ -421,10 +421,6 @@ def plot_drive(drive: Drive, path: str | None = None, ax=None):
 
     Writes a PNG to ``path`` when given; returns the axes.
     """
-    import matplotlib
-
-    if path is not None:
-        matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     own = ax is None
@@ -614,9 +610,6 @@ def markdown_table(result: dict) -> str:
 
 def plot_table(result: dict, path: str) -> None:
     """dr per row: average (bar, 95 % interval) and mean maximum (dot), [W]'s as red marks."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = result["rows"]

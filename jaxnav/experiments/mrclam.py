@@ -227,9 +227,6 @@ def format_table(rows: Sequence[tuple[int, AlgorithmResult]]) -> str:
 
 def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], path: str) -> None:
     """Paths (left) and SLAM maps (right) against the ground truth; writes a PNG to ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax_path, ax_err) = plt.subplots(1, 2, figsize=(13, 5.5))

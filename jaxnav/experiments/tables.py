@@ -129,9 +129,6 @@ def markdown_table(result: dict) -> str:
 
 def plot_table(result: dict, path: str) -> None:
     """Robot and tag distance errors per row (ours with 95 % intervals, [W] as markers)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = result["rows"]

@@ -497,9 +497,6 @@ def _band(ax, r, color, label):
 
 def plot_curves(result: dict, path: str) -> None:
     """fig-5.5/5.6: RMSE over time, one panel per multipath, three weightings, [A]'s values as dashed lines."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     panels = [m for m in MULTIPATHS if any(r["setting"]["multipath"] == m for r in result["rows"])]
@@ -530,9 +527,6 @@ def plot_curves(result: dict, path: str) -> None:
 
 def plot_anchor(result: dict, path: str) -> None:
     """fig-5.3: RMSE over time per anchor distance, and the final RMSE against the distance (λ/2 marked)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = result["rows"]

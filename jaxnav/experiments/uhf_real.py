@@ -208,9 +208,6 @@ def format_results(results: Sequence[TagResult]) -> str:
 
 def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray | None = None) -> None:
     """Two panels: the final estimates of every run beside the truth and the antenna track; error over the aperture."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     colors = {"combined": "C0", "rssi": "C1", "phase": "C2"}

@@ -583,3 +583,40 @@ def test_bad_inputs_are_refused_with_clear_messages():
     # value checks are skipped for tracers (as everywhere in jaxnav): no error inside jit
     out = jax.jit(U.log_w_rssi)(1e-9, 1e-9, -1.0, 0.5)
     assert out.shape == ()
+
+
+def test_read_log_likelihood_equals_the_public_formulas():
+    """The filters' fused hot path (log-domain power, angle-free lobe test, round-based wrap) gives
+    Σ_j log_w_rssi(y_j, power_scale) + log_w_phase over the valid reads, computed in float64 from the
+    public functions: tags in the main, side and back lobes, near and beyond the two-ray breakpoint,
+    phases across the wrap, a masked slot. The filter path runs in float32: the phase argument
+    |4πD/λ| reaches ~3000 rad (D ≈ 40 m), whose round-off (~4e-4 rad) moves a phase term by at most
+    (λ/4πσ)²·π·4e-4 ≈ 2e-3 (λ = 0.33 m, σ = 0.02 m); atol is 5e-3 per read, rtol covers log a."""
+    rng = np.random.default_rng(7)
+    m, j = 64, 5
+    reader = np.stack([rng.uniform(-1, 3, j), rng.uniform(-1, 3, j), rng.uniform(0.3, 2.0, j),
+                       rng.uniform(-np.pi, np.pi, j)], -1)
+    tags = np.stack([rng.uniform(-2, 4, m), rng.uniform(-2, 4, m), rng.uniform(0.1, 2.0, m)], -1)
+    tags[:4] = reader[0, :3] + np.array([[30.0, 0.5, 0.0], [0.0, 25.0, 0.2], [-40.0, 1.0, 0.0], [1.0, -35.0, 0.1]])
+    tags[:4, 2] = np.clip(tags[:4, 2], 0.1, None)
+    offset = rng.uniform(-np.pi, np.pi, m)
+    lam = np.array([0.173, 0.173, 0.33, 0.173, 0.33])
+    rssi = 10 ** rng.uniform(-9, -4, j)
+    phi = np.array([0.001, 6.282, 3.0, 1.0, 5.0])
+    mask = np.array([True, True, True, False, True])
+    gamma, sigma = U.GammaParams(3.0, 0.4), 0.02
+    with jax.enable_x64(True):
+        a = U.power_scale(jnp.asarray(reader)[None], jnp.asarray(tags)[:, None], U.DEFAULT_CHANNEL, wavelength=jnp.asarray(lam))
+        lo_d = np.linalg.norm(tags[:, None, :] - reader[None, :, :3], axis=-1)
+        pred = U.phase(jnp.asarray(lo_d), jnp.asarray(lam), jnp.asarray(offset)[:, None])
+        want = (np.asarray(U.log_w_rssi(jnp.asarray(rssi), a, gamma.k, gamma.theta))
+                + np.asarray(U.log_w_phase(jnp.asarray(phi), pred, sigma, jnp.asarray(lam))))
+        want = np.where(mask, want, 0.0).sum(-1)
+    gain = np.asarray(U.antenna_gain(jnp.asarray(tags[:, None] - reader[None, :, :3]), jnp.asarray(reader[:, 3])))
+    assert len(np.unique(np.round(gain, 6))) == 3  # all three lobes are exercised
+    assert np.any(lo_d > np.asarray(U.two_ray_breakpoint(reader[None, :, 2], tags[:, None, 2], lam)))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    channel, gam = U.read_model_float32(U.DEFAULT_CHANNEL, gamma)
+    got = U.read_log_likelihood(f32(reader)[None], f32(tags)[:, None], f32(offset)[:, None], f32(rssi), f32(phi),
+                                f32(lam), jnp.asarray(mask), channel, gam, f32(sigma))
+    np.testing.assert_allclose(np.asarray(got), want, rtol=2e-4, atol=5e-3 * j)

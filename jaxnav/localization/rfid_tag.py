@@ -243,13 +243,21 @@ def _init(key, config, params):
 
 
 def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax.Array, reads: U.UHFReads) -> jax.Array:
-    """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14."""
-    return U.read_log_likelihood(
-        reads.reader[None, :, :], particles[:, None, :3], particles[:, None, _OFFSET], reads.rssi[None, :],
-        reads.phase[None, :], reads.wavelength[None, :], reads.mask[None, :], params.channel, params.gamma,
-        params.phase_sigma, use_rssi=config.weighting in ("combined", "rssi"),
-        use_phase=config.weighting in ("combined", "phase"), softness=config.antenna_softness,
-    )
+    """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14.
+
+    One :func:`~jaxnav.models.uhf_rfid.read_log_terms` call per read slot (``J`` is static and
+    small), each a flat loop over the particles with the slot's scalars: see that function for
+    why this is faster inside a scan than one ``[M, J]`` broadcast.
+    """
+    xyz, offset = particles[:, :3], particles[:, _OFFSET]
+    total = jnp.zeros(particles.shape[:1], particles.dtype)
+    for j in range(reads.mask.shape[-1]):
+        total = total + U.read_log_terms(
+            reads.reader[j], xyz, offset, reads.rssi[j], reads.phase[j], reads.wavelength[j], reads.mask[j],
+            params.channel, params.gamma, params.phase_sigma, use_rssi=config.weighting in ("combined", "rssi"),
+            use_phase=config.weighting in ("combined", "phase"), softness=config.antenna_softness,
+        )
+    return total
 
 
 def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):

@@ -180,6 +180,7 @@ __all__ = [
     "UHFReads",
     "validate_reads",
     "read_log_likelihood",
+    "read_log_terms",
     "read_model_float32",
     "validate_read_model",
     "dbm_to_watt",
@@ -805,6 +806,102 @@ def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma:
     check_positive(f"{prefix}.phase_sigma (σ_phase, m)", phase_sigma)
 
 
+def _log_gain_stepped(dot, dist, params: AntennaParams):
+    """``log G_R`` of the stepped cone model from ``d·b`` and ``|d|``: no angle is computed.
+
+    ``γ ≤ φ`` ⟺ ``d·b ≥ cos(φ)·|d|`` for ``γ, φ ∈ [0, π]`` (cos decreases there), so the
+    lobe test needs no ``atan2`` ([A] §4.3.1; :func:`antenna_gain` gives the same gain).
+    """
+    g0, gs, gb, ps = params
+    main = dot >= jnp.cos(ps) * dist
+    side = dot >= jnp.cos(2.0 * ps) * dist
+    return jnp.where(main, jnp.log(g0), jnp.where(side, jnp.log(gs), jnp.log(gb)))
+
+
+def _log_power_scale_from_geometry(d, d2, reader_pose, tag_xyz, params: ChannelParams, wavelength, softness):
+    """``log a`` (a in W) with ``d = (dx, dy, dz) = tag − reader`` and ``d2 = |d|²`` (≥ the clamp); one ``log`` per pair.
+
+    ``log a = log(P_T η_T G_T²) + 2 log G_R + 2 log L`` with ``log L = 2 log(λ/4π) − log D²``
+    (free space) or ``2 log(h_R h_T) − 2 log D²`` (plane earth), the branch chosen by
+    ``D² < D_c²`` ([A] §4.1.2): the same number as ``log`` :func:`power_scale`, without its
+    powers and square roots. ``−inf`` for a zero height in the plane-earth branch.
+    """
+    if softness is None:
+        c, s_ = jnp.cos(reader_pose[..., 3]), jnp.sin(reader_pose[..., 3])
+        dot = d[0] * c + d[1] * s_
+        log_g = _log_gain_stepped(dot, jnp.sqrt(d2), params.antenna)
+    else:
+        log_g = jnp.log(_gain_nocheck(jnp.stack(jnp.broadcast_arrays(*d), -1), reader_pose[..., 3], params.antenna, softness))
+    h_r, h_t = reader_pose[..., 2], tag_xyz[..., 2]
+    hh = h_r * h_t
+    log_d2 = jnp.log(d2)
+    near = 2.0 * jnp.log(wavelength / (4.0 * jnp.pi)) - log_d2
+    far = 2.0 * jnp.log(jnp.where(hh > 0, hh, 1.0)) - 2.0 * log_d2
+    far = jnp.where(hh > 0, far, -jnp.inf)
+    d_c = 4.0 * jnp.pi * hh / wavelength
+    log_l = jnp.where(d2 < d_c * d_c, near, far)
+    const = jnp.log(params.tx_power * params.tag_efficiency * params.tag_gain**2)
+    return const + 2.0 * log_g + 2.0 * log_l
+
+
+def _log_w_rssi_from_logs(log_y, log_a, k, theta):
+    """:func:`log_w_rssi` from ``log y`` and ``log a`` (one ``exp``): ``log_a = −inf`` gives ``−inf``, never NaN."""
+    ok = log_a > -jnp.inf
+    log_u = 0.5 * (log_y - jnp.where(ok, log_a, 0.0))
+    lw = -jnp.log(2.0) - k * jnp.log(theta) - gammaln(k) - log_y + k * log_u - jnp.exp(log_u) / theta
+    return jnp.where(ok, lw, -jnp.inf)
+
+
+def _wrap_round(x):
+    """``x`` wrapped to ``[−π, π]`` by ``x − 2π·round(x/2π)`` (cheaper than ``%``; the ends only matter squared)."""
+    return x - _TWO_PI * jnp.round(x * (1.0 / _TWO_PI))
+
+
+def read_log_terms(
+    reader_pose: jax.Array,
+    tag_xyz: jax.Array,
+    theta_offset: jax.Array,
+    rssi: jax.Array,
+    phi: jax.Array,
+    wavelength: jax.Array,
+    mask: jax.Array,
+    channel: ChannelParams,
+    gamma: GammaParams,
+    phase_sigma: jax.Array,
+    use_rssi: bool = True,
+    use_phase: bool = True,
+    softness: Any = None,
+) -> jax.Array:
+    """``log W_RSSI + log W_PHASE`` of each read (0 where ``mask`` is False), broadcast, not summed.
+
+    Arguments as :func:`read_log_likelihood`, every one broadcastable against the others
+    (``reader_pose [..., 4]``, ``tag_xyz [..., 3]``, the rest ``[...]``). A filter with few
+    read slots calls it once per slot with that slot's scalars against the particle arrays
+    (:func:`jaxnav.localization.rfid_tag.log_likelihoods`): each call is then a flat loop over
+    the particles with scalar operands, which XLA:CPU runs several times faster inside a scan
+    than one ``[M, J]`` broadcast whose read operands are sliced from the scanned arrays.
+    Per particle and read it costs one ``log`` (of ``D²``), one ``exp`` and one ``sqrt``:
+    ``log a`` is assembled in the log domain (:func:`_log_power_scale_from_geometry`), the
+    stepped antenna's lobe test compares ``d·b`` with ``cos φ_s·|d|`` instead of computing the
+    angle, and ``D²`` is summed component by component (a reduction over a trailing axis of 3
+    is slow on XLA:CPU).
+    """
+    dx = tag_xyz[..., 0] - reader_pose[..., 0]
+    dy = tag_xyz[..., 1] - reader_pose[..., 1]
+    dz = tag_xyz[..., 2] - reader_pose[..., 2]
+    d2 = jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_DISTANCE * _TINY_DISTANCE)
+    total = jnp.zeros(jnp.broadcast_shapes(jnp.shape(mask), jnp.shape(d2)))
+    if use_rssi:
+        log_a = _log_power_scale_from_geometry((dx, dy, dz), d2, reader_pose, tag_xyz, channel, wavelength, softness)
+        log_y = jnp.log(jnp.where(mask, rssi, 1.0))  # per read, not per particle
+        total = total + _log_w_rssi_from_logs(log_y, log_a, gamma.k, gamma.theta)
+    if use_phase:
+        pred = (-4.0 * jnp.pi / wavelength) * jnp.sqrt(d2) + theta_offset
+        r = (wavelength / (4.0 * jnp.pi * phase_sigma)) * _wrap_round(phi - pred)  # Δ/σ, [A] §4.3.2
+        total = total + (-0.5 * r * r - jnp.log(phase_sigma) - 0.5 * math.log(_TWO_PI))
+    return jnp.where(mask, total, 0.0)
+
+
 def read_log_likelihood(
     reader_pose: jax.Array,
     tag_xyz: jax.Array,
@@ -829,17 +926,11 @@ def read_log_likelihood(
     broadcasts the tag (``[M, 1, 3]``) against fixed readers (``[1, J, 4]``);
     one over the robot broadcasts the reader against fixed anchors. The
     static flags ``use_rssi`` / ``use_phase`` pick the weighting. Returns ``[...]``.
+    The per-read terms are :func:`read_log_terms`; the tests check them against
+    :func:`log_w_rssi` of :func:`power_scale` plus :func:`log_w_phase`.
     """
-    total = jnp.zeros(jnp.broadcast_shapes(jnp.shape(mask), jnp.shape(reader_pose)[:-1], jnp.shape(tag_xyz)[:-1]))
-    if use_rssi:
-        a = _power_scale(reader_pose, tag_xyz, channel, softness, wavelength)
-        total = total + _log_w_rssi(jnp.where(mask, rssi, 1.0), a, gamma.k, gamma.theta)
-    if use_phase:
-        d = _norm(tag_xyz - reader_pose[..., :3])
-        pred = -4.0 * jnp.pi * d / wavelength + theta_offset
-        r = wavelength / (4.0 * jnp.pi) * wrap_angle(phi - pred) / phase_sigma  # Δ/σ, [A] §4.3.2
-        total = total + (-0.5 * r * r - jnp.log(phase_sigma) - 0.5 * math.log(_TWO_PI))
-    return jnp.sum(jnp.where(mask, total, 0.0), axis=-1)
+    return jnp.sum(read_log_terms(reader_pose, tag_xyz, theta_offset, rssi, phi, wavelength, mask, channel, gamma,
+                                  phase_sigma, use_rssi, use_phase, softness), axis=-1)
 
 
 # --------------------------------------------------------------------------------------

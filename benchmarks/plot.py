@@ -9,7 +9,7 @@ import os
 from collections import defaultdict
 from typing import Sequence
 
-__all__ = ["plot_workload", "plot_all", "plot_s1", "plot_s2", "plot_w5"]
+__all__ = ["plot_workload", "plot_all", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
 
 _STYLE = {
     # implementation -> (colour, marker)
@@ -215,7 +215,79 @@ def plot_w5(rows: Sequence[dict], path: str, title: str = "W5", subtitle: str = 
     return _save(fig, path)
 
 
-_CUSTOM = {"S1": plot_s1, "S2": plot_s2, "W5": plot_w5}
+def plot_u1(rows: Sequence[dict], path: str, title: str = "U1", subtitle: str = "") -> str | None:
+    """U1: time per step against particles N (NumPy/jaxnav written at each N), and against tags in one
+    ``run_tags`` call at N = 1e4 (with the linear-scaling line G·t(1) and t(10)/t(1) in the legend)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _timed(rows, "U1")
+    if not rows:
+        return None
+    by_n = [r for r in rows if set(r["size"]) == {"N"}]
+    by_tags = [r for r in rows if "tags" in r["size"]]
+    fig, axes = plt.subplots(1, 2, figsize=(13.0, 5.2), dpi=110, gridspec_kw={"width_ratios": [1.5, 1]})
+    ax = axes[0]
+    series: dict[tuple, list[tuple[float, float]]] = defaultdict(list)
+    floors: dict[float, float] = {}
+    for r in by_n:
+        series[(r["implementation"], r["mode"])].append((float(r["size"]["N"]), 1e3 * r["median_s"]))
+        if r.get("floor_s"):
+            floors[float(r["size"]["N"])] = 1e3 * r["floor_s"]
+    for key in sorted(series, key=lambda k: (not k[0].startswith("jax"), k)):
+        pts = sorted(series[key])
+        colour, marker = _STYLE.get(key[0], (None, "x"))
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
+                linestyle="-" if key[1] == "in_scan" else ":", linewidth=1.6, markersize=5, label=f"{key[0]} ({key[1]})")
+    if floors:
+        fx = sorted(floors)
+        ax.plot(fx, [floors[x] for x in fx], "k--", linewidth=1.2, label="memory floor")
+    ours = dict(series.get(("jaxnav", "in_scan"), []))
+    for x, y in series.get(("numpy", "per_call"), []):
+        if x in ours:
+            ax.annotate(f"numpy / jaxnav = {y / ours[x]:.2f}", (x, y), textcoords="offset points", xytext=(6, -12),
+                        fontsize=8, color="tab:orange")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    _plain_log_ticks(ax, "y")
+    ax.set_xlabel("particles N (one tag)")
+    ax.set_ylabel("time per step (ms)")
+    ax.set_title("one tag: time per update against N", fontsize=10)
+    ax.grid(True, which="major", alpha=0.4)
+    ax.grid(True, which="minor", alpha=0.12)
+    ax.legend(fontsize=8, loc="upper left")
+
+    ax = axes[1]
+    pts = sorted((int(r["size"]["tags"]), 1e3 * r["median_s"]) for r in by_tags)
+    if pts:
+        g = [p[0] for p in pts]
+        label = "jaxnav run_tags (in_scan)"
+        if len(pts) > 1:
+            label += f"  t({g[-1]}) / t({g[0]}) = {pts[-1][1] / pts[0][1]:.2f}"
+        ax.plot(g, [p[1] for p in pts], "o-", color="tab:blue", linewidth=1.6, markersize=5, label=label)
+        t1 = pts[0][1] / pts[0][0]
+        ax.plot(g, [t1 * x for x in g], "--", color="tab:gray", linewidth=1.2, label="G · t(first) (linear)")
+        n_tag = by_tags[0]["size"]["N"]
+        single = [r for r in by_n if r["implementation"] == "jaxnav" and r["size"]["N"] == n_tag]
+        if single:
+            ax.plot([1], [1e3 * single[0]["median_s"]], "D", color="tab:cyan", markersize=6,
+                    label="jaxnav run, one tag, no vmap (in_scan)")
+        ax.set_title(f"N = {n_tag:g} particles per tag: time per update of all tags", fontsize=10)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    _plain_log_ticks(ax, "xy")
+    ax.set_xlabel("tags G in one vmapped call")
+    ax.set_ylabel("time per step, all tags (ms)")
+    ax.grid(True, which="major", alpha=0.4)
+    ax.grid(True, which="minor", alpha=0.12)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(_title(title, subtitle), fontsize=10)
+    return _save(fig, path)
+
+
+_CUSTOM = {"S1": plot_s1, "S2": plot_s2, "W5": plot_w5, "U1": plot_u1}
 
 
 def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:

@@ -260,25 +260,45 @@ def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax
     return total
 
 
-def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
+class _Weighed(NamedTuple):
+    """One step's reweighting (Alg. 6 lines 9–19), before the resampling decision is acted on."""
+
+    log_weights: jax.Array
+    info: RFIDTagInfo
+
+
+def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> _Weighed:
     ll = log_likelihoods(config, params, state.particles, reads)
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
     estimate = weights.mean_from_probabilities(state.particles, probs, (_OFFSET,))
     ess = weights.ess_from_probabilities(probs)
     any_read = jnp.any(reads.mask)
-    threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
+    # the rule of resampling.conditional_resample: ESS < threshold·M, and never without a read
+    resample = any_read & (ess < config.ess_threshold * config.num_particles)
+    info = RFIDTagInfo(estimate, ess, resample, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
+                       jnp.sum(reads.mask, dtype=jnp.int32))
+    return _Weighed(norm.log_weights, info)
+
+
+def _resample(key, particles, log_weights, config: RFIDTagConfig, params: RFIDTagParams):
+    """Alg. 6 lines 20–26 taken: systematic resampling, the refresh, the box clip; uniform weights."""
     res = resampling.conditional_resample(
-        key, state.particles, norm.log_weights, threshold=threshold, scheme="systematic",
+        key, particles, log_weights, threshold=1.0, scheme="systematic",
         refresh=config.refresh, angle_dims=(_OFFSET,), normalized=True,
     )
     xyz = jnp.clip(res.particles[:, :3], params.box_lo, params.box_hi)
     if config.dims == 2:
         xyz = xyz.at[:, 2].set(params.tag_height)
-    particles = jnp.concatenate([xyz, res.particles[:, 3:]], axis=-1)
-    info = RFIDTagInfo(estimate, ess, res.resampled, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
-                       jnp.sum(reads.mask, dtype=jnp.int32))
-    return RFIDTagState(particles, res.log_weights), info
+    return jnp.concatenate([xyz, res.particles[:, 3:]], axis=-1), res.log_weights
+
+
+def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
+    w = _weigh(state, config, params, reads)
+    particles, log_weights = jax.lax.cond(
+        w.info.resampled, lambda: _resample(key, state.particles, w.log_weights, config, params),
+        lambda: (state.particles, w.log_weights))
+    return RFIDTagState(particles, log_weights), w.info
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",))
@@ -344,14 +364,41 @@ def run(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.U
 
 @partial(jax.jit, static_argnames=("config",))
 def _run_tags_jit(key, config, params, reads, states):
+    """``vmap`` of :func:`_run` over tags, except the resampling branch.
+
+    Under ``vmap`` a per-tag ``lax.cond`` becomes a select that computes the resampling
+    and refresh of every tag at every step. Here the tags are reweighed together, and the
+    branch runs (for all tags, each keeping its own result only if it resamples) only at
+    steps where at least one tag resamples: a step where none does costs G likelihoods.
+    """
     g = reads.mask.shape[0]
-    keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
-    return jax.vmap(_run, in_axes=(0, None, None, 0, 0))(keys, config, params, reads, states)
+    tag_keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
+    reads_t = jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, 1, 0), reads)  # [T, G, ...]
+
+    def body(carry, inputs):
+        t, r = inputs
+        w = jax.vmap(_weigh, in_axes=(0, None, None, 0))(carry, config, params, r)
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, t))(tag_keys)
+
+        def resample_some():
+            p, lw = jax.vmap(_resample, in_axes=(0, 0, 0, None, None))(keys, carry.particles, w.log_weights, config, params)
+            take = w.info.resampled
+            return (jnp.where(take[:, None, None], p, carry.particles), jnp.where(take[:, None], lw, w.log_weights))
+
+        particles, log_weights = jax.lax.cond(jnp.any(w.info.resampled), resample_some,
+                                              lambda: (carry.particles, w.log_weights))
+        return RFIDTagState(particles, log_weights), w.info
+
+    final, trace = jax.lax.scan(body, states, (jnp.arange(reads_t.mask.shape[0]), reads_t))
+    return final, jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, 0, 1), trace)
 
 
 def run_tags(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads,
              initial_states: RFIDTagState | None = None) -> tuple[RFIDTagState, RFIDTagInfo]:
-    """:func:`run` for ``G`` tags at once (``vmap``, no Python loop); reads have mask shape ``[G, T, J]``.
+    """:func:`run` for ``G`` tags at once (one scan, ``vmap`` over tags, no Python loop); reads have mask shape ``[G, T, J]``.
+
+    The resampling branch runs only at steps where some tag resamples (:func:`_run_tags_jit`),
+    so G tags cost about G likelihood evaluations per step, not G resamplings.
 
     Tag ``g`` runs with key ``key_g = fold_in(key, g)``; when ``initial_states`` is None
     its particles start from :func:`init` with ``fold_in(key_g, 2**31 − 1)``. All tags

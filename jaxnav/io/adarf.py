@@ -377,8 +377,7 @@ def to_uhf_reads(
     reader[:, :, 3] = BORESIGHT_YAW
     rssi = np.ones((NUM_POINTS, j))  # masked slots hold finite dummies (never read)
     phi = np.zeros((NUM_POINTS, j))
-    lam = np.full((NUM_POINTS, j), U.SPEED_OF_LIGHT / CHANNELS_HZ[chans[0]])
-    lam[:, :] = (U.SPEED_OF_LIGHT / CHANNELS_HZ[list(chans)]).repeat(reads_per_channel)[None, :]
+    lam = np.broadcast_to((U.SPEED_OF_LIGHT / CHANNELS_HZ[list(chans)]).repeat(reads_per_channel), (NUM_POINTS, j))
     mask = np.zeros((NUM_POINTS, j), bool)
     rssi[point, col] = np.asarray(U.dbm_to_watt(exp.rssi_dbm[read]))
     phi[point, col] = phase[read]

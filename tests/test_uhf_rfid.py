@@ -451,10 +451,12 @@ def test_closed_form_within_stirling_error_of_exact_ml(k):
         ubar = u.mean()
         s = np.log(ubar) - np.log(u).mean()
         # the ML is exact: App. D's stationarity equations hold (θk = ū, ln k − ψ(k) = s),
-        # and it agrees with a bracketing root-finder to 1e-6 relative
+        # and it agrees with a bracketing root-finder to 1e-6 relative. θk = ū to the
+        # estimator's documented float64 precision (~1e-8 relative; 6e-9 measured at k = 20
+        # with the suite's XLA flags, < 1e-9 with XLA's defaults: the L-BFGS path differs).
         k_star = brentq(lambda x: np.log(x) - special.digamma(x) - s, 1e-3, 1e6, xtol=1e-14)
         np.testing.assert_allclose(float(ml.k), k_star, rtol=1e-6)
-        np.testing.assert_allclose(float(ml.k * ml.theta), ubar, rtol=1e-9)
+        np.testing.assert_allclose(float(ml.k * ml.theta), ubar, rtol=2e-8)
         np.testing.assert_allclose(float(cf.k * cf.theta), ubar, rtol=1e-12)
         # the closed form solves App. E's equation exactly
         np.testing.assert_allclose(1 / (2 * cf.k) * (1 + 1 / (6 * cf.k)), s, rtol=1e-10)

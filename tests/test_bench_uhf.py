@@ -28,10 +28,9 @@ ground (where both must give −inf).
   twice that; the bound adds a factor ~2. Measured: jaxnav and the peer
   each ≤ 2e-3 from the float64 value where ``|ℓ| < 1e3``, and
   ``|Δ| − 2e-5·|ℓ| ≤ 2.4e-4`` between them.
-* a full step (float64) given the same resampling uniform and refresh normals
-  (recomputed from jaxnav's step key: ``split(key)`` into the systematic
-  uniform and the Gaussian refresh draws, as in
-  ``jaxnav.core.resampling.conditional_resample``): the same estimate, ESS,
+* a full step (float64) given the same refresh normals (recomputed from
+  jaxnav's step key, which ``rfid_tag._resample`` hands to
+  ``jaxnav.core.resampling.gaussian_draw``): the same estimate, ESS,
   resampling decision, log-likelihood increment, particles and log-weights,
   to 1e-9 relative; once from the broad prior cloud (ESS < 0.1 M:
   resampling and refresh) and once from a cloud 1 mm around the tag (no
@@ -170,11 +169,9 @@ def test_step_matches_jaxnav_step_float64(case, cloud, expect_resample):
         state = rt.RFIDTagState(jnp.asarray(p, jnp.float64), jnp.asarray(lw, jnp.float64))
         # rt._step_jit, not rt.step: the public step casts the reads to float32 (even under x64)
         new, info = rt._step_jit(key, state, cfg, _params64(params), _as_uhf(reads, jnp.float64))
-        k_res, k_ref = jax.random.split(key)
-        u = float(jax.random.uniform(k_res, (), jnp.float64))
-        eps = np.asarray(jax.random.normal(k_ref, (n, 4), jnp.float64)).T
+        eps = np.asarray(jax.random.normal(key, (n, 4), jnp.float64)).T  # the refresh's draws
     pf = nu.NumpyRFIDTag(p, nu.model_from_params(params), lw, ess_threshold=0.1, dtype=np.float64)
-    out = pf.step(reads, uniform=u, normals=eps)
+    out = pf.step(reads, normals=eps)
     assert bool(info.resampled) is expect_resample and out.resampled is expect_resample
     assert not out.degenerate and not bool(info.degenerate)
     assert out.num_reads == int(info.num_reads) == 4

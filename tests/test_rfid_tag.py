@@ -123,6 +123,37 @@ def test_masked_reads_change_nothing(params):
     assert int(info.num_reads) == 0 and not bool(info.resampled) and float(info.log_likelihood) == 0.0
 
 
+def test_refresh_draws_from_the_gaussian_of_the_weighted_set(params):
+    """A resampling step redraws the set from N(μ, Σ) of the reweighed set (μ the step's estimate):
+    with M = 20,000 the new set's mean is within 4 standard errors of μ and its covariance within 5 %
+    of Σ entrywise (relative to the diagonal), and the weights are uniform."""
+    m = 20_000
+    cfg = rt.RFIDTagConfig(num_particles=m, ess_threshold=1.0)
+    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(8), 3)
+    center = jnp.asarray([1.0, 1.5, 1.0, 0.5])
+    particles = center + jax.random.normal(k1, (m, 4)) * jnp.asarray([0.1, 0.15, 0.08, 0.3])
+    log_w = 2.0 * jax.random.normal(k2, (m,))  # a non-uniform prior weighting
+    reads = jax.tree.map(lambda x: x[40], _reads(jax.random.PRNGKey(2), TAGS[0], OFFSETS[0]))
+    state = rt.RFIDTagState(particles, log_w - jax.scipy.special.logsumexp(log_w))
+    new, info = rt.step(k3, state, cfg, params, reads)
+    assert bool(info.resampled)
+    w = np.exp(np.asarray(state.log_weights + rt.log_likelihoods(cfg, params, particles, reads), np.float64))
+    w /= w.sum()
+    x = np.asarray(particles, np.float64)
+    mu = w @ x
+    mu[3] = np.arctan2(w @ np.sin(x[:, 3]), w @ np.cos(x[:, 3]))  # the offset's mean is on the circle
+    np.testing.assert_allclose(np.asarray(info.estimate), mu, atol=1e-4)
+    r = x - mu
+    r[:, 3] = np.angle(np.exp(1j * r[:, 3]))
+    cov = (w[:, None] * r).T @ r
+    got = np.asarray(new.particles, np.float64)
+    se = np.sqrt(np.diag(cov) / m)
+    assert np.all(np.abs(got.mean(0) - mu) < 4 * se), (got.mean(0), mu, se)
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert np.all(np.abs(np.cov(got.T) - cov) < 0.05 * scale), (np.cov(got.T), cov)
+    np.testing.assert_allclose(np.asarray(new.log_weights), -np.log(m), rtol=1e-6)
+
+
 def test_run_tags_vmaps_over_tags_like_separate_runs(params):
     """Three tags in one vmapped call: each tag's first step equals its own run's (same keys), and
     all localise. Later steps are not compared: vmapped reductions sum in another order, and the

@@ -26,14 +26,11 @@ written as a plain vectorised NumPy program over the ``M`` particles
   (NaN / ``+∞`` → ``−∞``; all ``−∞`` → uniform and flagged degenerate);
 * estimate ``Σ p_i X_i`` with ``θ_off`` averaged on the circle
   (``atan2(Σ p sin, Σ p cos)``), ESS ``1 / Σ p²`` ([A] Alg. 6 lines 17–19);
-* when ``ESS < ess_threshold · M`` (and the step had a read): systematic
-  resampling (one uniform ``u``, points ``(u + m)/M`` clamped below 1,
-  ``searchsorted`` side ``right`` on the cumulative sum normalised by its
-  last entry, indices clipped to ``M − 1``: the indices of
-  :func:`jaxnav.core.resampling.inverse_cdf`), then the Gaussian refresh of
-  [A] §4.3.3 (:func:`jaxnav.core.resampling.gaussian_refresh`: mean with the
-  offset on the circle, plug-in covariance with wrapped offset residuals,
-  ``+1e-9 I``, Cholesky, ``μ + L ε``, offset wrapped to ``[−π, π)``), and the
+* when ``ESS < ess_threshold · M`` (and the step had a read): the Gaussian
+  refresh of [A] §4.3.3 as jaxnav does it (``rfid_tag._resample``): the
+  Gaussian fitted to the *weighted* set (mean = the estimate, plug-in
+  weighted covariance with wrapped offset residuals, ``+1e-9 I``, Cholesky,
+  ``μ + L ε``, offset wrapped to ``[−π, π)``; no ancestors drawn), the
   positions clipped into the search box; log-weights reset to ``−log M``.
 
 Written to be a fair, fast NumPy peer, not a straw man:
@@ -61,7 +58,7 @@ computed in float64 and rounded once. ``tests/test_bench_uhf.py`` checks
 that :func:`log_likelihoods` equals ``rfid_tag.log_likelihoods`` on the same
 particles and reads (float64: to 1e-9; float32: to ``5e-3 + 2e-5·|ℓ|``), and
 that a full step equals the jitted body of ``rfid_tag.step`` given the same
-resampling uniform and refresh draws.
+refresh draws.
 """
 
 from __future__ import annotations
@@ -283,7 +280,7 @@ class NumpyRFIDTag:
         model: :class:`UHFModel` (:func:`model_from_params`).
         log_weights: ``[M]`` normalised log-weights (default uniform).
         ess_threshold: resample when ESS < ``ess_threshold · M`` (jaxnav's default 0.1).
-        seed: seed of the ``np.random.Generator`` (resampling uniform, refresh normals).
+        seed: seed of the ``np.random.Generator`` (the refresh normals).
         dtype: float dtype (float32, jaxnav's).
     """
 
@@ -297,7 +294,6 @@ class NumpyRFIDTag:
         self.model = model
         self.ess_threshold = float(ess_threshold)
         self.rng = np.random.default_rng(seed)
-        self.grid = np.arange(n, dtype=dtype)
         self.lo = np.asarray(model.box_lo, dtype)[:, None]
         self.hi = np.asarray(model.box_hi, dtype)[:, None]
         self.scratch = _Scratch()
@@ -348,25 +344,12 @@ class NumpyRFIDTag:
         est[3] = math.atan2(float(np.sin(off) @ probs), float(np.cos(off) @ probs))
         return est
 
-    def _systematic(self, probs, uniform):
-        cdf = np.cumsum(probs)
-        cdf *= self.f(1.0) / cdf[-1]
-        pts = self.grid + self.f(uniform)
-        pts /= self.f(self.n)
-        np.minimum(pts, np.nextafter(self.f(1.0), self.f(0.0)), out=pts)
-        idx = np.searchsorted(cdf, pts, side="right")
-        np.minimum(idx, self.n - 1, out=idx)
-        return idx
-
-    def _refresh(self, p, normals):
-        """[A] §4.3.3: redraw ``p [4, M]`` from its Gaussian (offset on the circle), in place."""
+    def _refresh(self, probs, mean, normals):
+        """[A] §4.3.3: a new set ``[4, M]`` from the Gaussian of the weighted set (``mean`` its estimate)."""
         n = self.n
-        mean = p.mean(axis=1)
-        off = p[3]
-        mean[3] = math.atan2(float(np.sin(off).mean()), float(np.cos(off).mean()))
-        resid = p - mean[:, None]
+        resid = self.p - mean[:, None]
         resid[3] = _wrap(resid[3])
-        cov = (resid @ resid.T) * self.f(1.0 / n)
+        cov = (resid * probs) @ resid.T  # BLAS
         cov = 0.5 * (cov + cov.T) + self.f(_JITTER) * np.eye(4, dtype=self.dtype)
         try:
             chol = np.linalg.cholesky(cov)
@@ -381,12 +364,11 @@ class NumpyRFIDTag:
         np.clip(new[:3], self.lo, self.hi, out=new[:3])
         return new
 
-    def step(self, reads, uniform: float | None = None, normals=None) -> StepInfo:
+    def step(self, reads, normals=None) -> StepInfo:
         """One update on the step's ``J`` read slots ``(reader, rssi, phase, wavelength, mask)``.
 
-        ``uniform`` (the systematic resampling's ``u``) and ``normals`` (``[4, M]``
-        refresh draws) are drawn from the generator unless given (the tests pass
-        jaxnav's draws).
+        ``normals`` (``[4, M]`` refresh draws) are drawn from the generator unless
+        given (the tests pass jaxnav's draws).
         """
         reader, rssi, phase, lam, mask = _as_step_reads(reads)
         any_read = bool(mask.any())
@@ -403,9 +385,7 @@ class NumpyRFIDTag:
         threshold = self.ess_threshold if any_read else 0.0
         resampled = ess < threshold * self.n
         if resampled:
-            u = self.rng.random(dtype=self.dtype) if uniform is None else uniform
-            idx = self._systematic(probs, u)
-            self.p = self._refresh(np.take(self.p, idx, axis=1), normals)
+            self.p = self._refresh(probs, est.astype(self.dtype), normals)
             lw.fill(-math.log(self.n))
             self.resamplings += 1
         self.lw = lw

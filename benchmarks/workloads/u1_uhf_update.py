@@ -12,8 +12,9 @@ The update
 the ``J = 4`` reads of a step, ``log W_RSSI`` (two-ray power, stepped antenna
 pattern, squared-Gamma density) plus ``log W_PHASE`` (Gaussian on [A]'s phase
 distance), summed; ``logsumexp`` normalisation; weighted-mean estimate with the
-offset on the circle; ESS; when ``ESS < 0.1 N`` systematic resampling and the
-Gaussian refresh of [A] §4.3.3, clipped into the search box.
+offset on the circle; ESS; when ``ESS < 0.1 N`` the Gaussian refresh of
+[A] §4.3.3 (from the weighted set's moments, see ``rfid_tag._resample``),
+clipped into the search box.
 
 Data
 ----
@@ -57,8 +58,9 @@ tags) on ``G`` tags, time per step for all G tags together, and
 ``per_tag_s``; the ``tags = 10`` row adds ``ratio_to_tags_1``
 (``time(10) / time(1)``, the issue asks ≤ 10) and ``ratio_to_run`` (over
 the unbatched :func:`rfid_tag.run` of tag 0 at N = 1e4 in the same run).
-Under ``vmap`` the resampling ``lax.cond`` becomes a select, so every tag
-evaluates the resampling branch at every step (with G = 1 too).
+The tags are reweighed under ``vmap``; at steps where some tag resamples a
+``lax.map`` over the tags runs each tag's own ``cond``, so a tag pays for the
+refresh only when it resamples.
 
 Floor
 -----
@@ -455,8 +457,8 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
 
         jit = {
             "jaxnav step, no resampling": (jax.jit(lambda k, s: rt._step(k, s, cfg_nr, params, r)), (key, state)),
-            "jaxnav resample + refresh": (jax.jit(lambda k, p, l: resampling.conditional_resample(
-                k, p, l, threshold=1.0, refresh=True, angle_dims=(3,), normalized=True)), (key, state.particles, lw)),
+            "jaxnav refresh (rfid_tag._resample)": (jax.jit(lambda k, p, w: rt._resample(k, p, w, cfg, params)),
+                                                     (key, state.particles, rt._weigh(state, cfg, params, r))),
             "jaxnav resample, no refresh": (jax.jit(lambda k, p, l: resampling.conditional_resample(
                 k, p, l, threshold=1.0, refresh=False, normalized=True)), (key, state.particles, lw)),
             "jaxnav log_likelihoods (combined)": (jax.jit(lambda p: rt.log_likelihoods(cfg, params, p, r)),
@@ -477,17 +479,12 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
             g = NUM_TAGS
             rg = jax.tree_util.tree_map(lambda x: x[:, 5], tag_reads(slice(0, g)))
             pg = jnp.stack([initial_state(n, i).particles for i in range(g)])
-            lwg = jnp.stack([lw] * g)
             keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
             jit[f"vmap {g} tags: log_likelihoods"] = (
                 jax.jit(jax.vmap(lambda p, rr: rt.log_likelihoods(cfg, params, p, rr))), (pg, rg))
-            jit[f"vmap {g} tags: conditional resample + refresh (select)"] = (
-                jax.jit(jax.vmap(lambda k, p, l: resampling.conditional_resample(
-                    k, p, l, threshold=0.1, refresh=True, angle_dims=(3,), normalized=True))), (keys, pg, lwg))
-            jit["1 tag: conditional resample + refresh (cond, not taken)"] = (
-                jax.jit(lambda k, p, l: resampling.conditional_resample(
-                    k, p, l, threshold=0.1, refresh=True, angle_dims=(3,), normalized=True)),
-                (key, state.particles, jnp.full((n,), -math.log(n))))
+            wg = jax.vmap(lambda p, rr: rt._weigh(rt.RFIDTagState(p, jnp.full((n,), -math.log(n))), cfg, params, rr))(pg, rg)
+            jit[f"{g} tags: lax.map of each tag's refresh"] = (
+                jax.jit(lambda k, p, w: jax.lax.map(lambda a: rt._resample(*a, cfg, params), (k, p, w))), (keys, pg, wg))
         fns = {}
         for name, (f, args) in jit.items():
             f.lower(*args).compile()
@@ -503,7 +500,8 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
 
         fns["numpy log-likelihood"] = lambda: pf.log_likelihoods(rn)
         fns["numpy step, no resampling"] = np_step
-        fns["numpy resample + refresh"] = lambda: pf._refresh(np.take(pf.p, pf._systematic(probs, 0.5), axis=1), None)
+        est = (pf.p @ probs).astype(pf.dtype)
+        fns["numpy refresh"] = lambda: pf._refresh(probs, est, None)
         best = {k: math.inf for k in fns}
         for _ in range(rounds):
             for k, f in fns.items():

@@ -6,6 +6,7 @@ from jaxnav.core.resampling import (
     ResampleResult as ResampleResult,
     conditional_resample as conditional_resample,
     gaussian_refresh as gaussian_refresh,
+    gaussian_draw as gaussian_draw,
     get_resampler as get_resampler,
     inverse_cdf as inverse_cdf,
     multinomial as multinomial,

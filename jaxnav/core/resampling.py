@@ -50,6 +50,7 @@ __all__ = [
     "ResampleResult",
     "conditional_resample",
     "gaussian_refresh",
+    "gaussian_draw",
     "kernel_refresh",
     "silverman_bandwidth",
     "REFRESHES",
@@ -245,25 +246,46 @@ REFRESHES = ("gaussian", "kernel")
 """What :func:`conditional_resample` may redraw the resampled set from (``refresh=``)."""
 
 
-def _fitted_cholesky(particles, log_weights, angle_dims, jitter):
-    """Mean and a Cholesky factor of the covariance of ``particles [N, D]`` (diagonal if the factorisation fails)."""
-    n, d = particles.shape
+def _moments(particles, log_weights, angle_dims):
+    """Mean and covariance of ``particles [N, D]`` under ``log_weights`` (uniform if None)."""
+    n = particles.shape[0]
     if log_weights is None:
-        log_weights = jnp.zeros((n,), particles.dtype)
-    mean = _w.particle_mean(particles, log_weights, angle_dims)
-    cov = _w.weighted_cov(particles, log_weights, angle_dims, mean)
+        probs = jnp.full((n,), 1.0 / n, particles.dtype)
+    else:
+        probs = jnp.exp(_w.normalize(log_weights).log_weights)
+    mean = _w.mean_from_probabilities(particles, probs, angle_dims)
+    return mean, _w.cov_from_probabilities(particles, probs, mean, angle_dims)
+
+
+def _cholesky_with_fallback(cov, jitter):
+    d = cov.shape[-1]
     cov = 0.5 * (cov + cov.T) + jitter * jnp.eye(d, dtype=cov.dtype)
     chol = jnp.linalg.cholesky(cov)
     # A failed factorisation (NaN) falls back to the diagonal standard deviations.
     diag_chol = jnp.diag(jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0)))
-    return mean, jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
+    return jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
 
 
 def _wrap_angles(x, angle_dims):
-    if not angle_dims:
-        return x
-    mask = jnp.zeros((x.shape[-1],), bool).at[jnp.asarray(angle_dims)].set(True)
-    return jnp.where(mask, _w.wrap_angle(x), x)
+    return _w.wrap_columns(x, angle_dims)
+
+
+def gaussian_draw(
+    key: jax.Array,
+    mean: jax.Array,
+    cov: jax.Array,
+    num_samples: int,
+    angle_dims: tuple[int, ...] = (),
+    jitter: float = 1e-9,
+) -> jax.Array:
+    """``[num_samples, D]`` draws ``μ + L ε`` from ``N(μ, Σ)``, ``L Lᵀ = Σ + jitter·I``, ``angle_dims`` wrapped to ``[-π, π)``.
+
+    The draw of :func:`gaussian_refresh` for a filter that already holds the moments
+    (:func:`jaxnav.core.weights.mean_from_probabilities`, :func:`~jaxnav.core.weights.cov_from_probabilities`).
+    If ``Σ`` has no Cholesky factor the draw uses its diagonal.
+    """
+    eps = jax.random.normal(key, (num_samples, mean.shape[-1]), mean.dtype)
+    return _wrap_angles(mean + eps @ _cholesky_with_fallback(cov, jitter).T, angle_dims)
 
 
 def gaussian_refresh(
@@ -282,10 +304,8 @@ def gaussian_refresh(
     the diagonal so that a collapsed cloud still has a Cholesky factor.
     One Gaussian keeps one mode: see :func:`kernel_refresh` for a set with several.
     """
-    n, d = particles.shape
-    mean, chol = _fitted_cholesky(particles, log_weights, angle_dims, jitter)
-    eps = jax.random.normal(key, (n, d), particles.dtype)
-    return _wrap_angles(mean + eps @ chol.T, angle_dims)
+    mean, cov = _moments(particles, log_weights, angle_dims)
+    return gaussian_draw(key, mean, cov, particles.shape[0], angle_dims, jitter)
 
 
 def silverman_bandwidth(n: int, d: int) -> float:
@@ -315,7 +335,7 @@ def kernel_refresh(
     """
     n, d = particles.shape
     h = silverman_bandwidth(n, d) if bandwidth is None else bandwidth
-    _, chol = _fitted_cholesky(particles, log_weights, angle_dims, jitter)
+    chol = _cholesky_with_fallback(_moments(particles, log_weights, angle_dims)[1], jitter)
     eps = jax.random.normal(key, (n, d), particles.dtype)
     return _wrap_angles(particles + h * (eps @ chol.T), angle_dims)
 

@@ -21,9 +21,11 @@ offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
 * lines 17–19: normalise; ESS; the estimate is the weighted mean (the
   offset on the circle), taken before resampling;
 * lines 20–26: resample only when ``ESS < ess_threshold · M``, and then
-  redraw the set from the Gaussian fitted to the resampled particles
-  ([A] §4.3.3: duplicates of a static target would stay duplicates forever;
-  :func:`jaxnav.core.resampling.conditional_resample` with ``refresh``).
+  redraw the set from the fitted Gaussian ([A] §4.3.3: duplicates of a
+  static target would stay duplicates forever). [A] fits it to the resampled
+  particles; we fit it to the weighted set, whose moments those estimate
+  (no ancestors drawn: the same Gaussian without the resampling's noise;
+  :func:`jaxnav.core.resampling.gaussian_draw`).
   [A] asks for a threshold "significantly lower" than ``M/2`` because the
   Gaussian is unimodal while the early posterior is multimodal (a phase read
   is consistent with spheres ``λ/2`` apart); ours is 0.1 (our choice). The
@@ -36,7 +38,8 @@ columns so that every shape is the same.
 
 Several tags: :func:`run_tags` ``vmap``s :func:`run` over a leading tag axis
 (``[A]``: "localization of more than one tags simply requires the execution
-inside a loop"; here it is one vectorised call).
+inside a loop"; here it is one vectorised call, with each tag resampling only
+when it must).
 
 Interface (shared by every jaxnav filter)::
 
@@ -264,6 +267,7 @@ class _Weighed(NamedTuple):
     """One step's reweighting (Alg. 6 lines 9–19), before the resampling decision is acted on."""
 
     log_weights: jax.Array
+    probs: jax.Array
     info: RFIDTagInfo
 
 
@@ -278,25 +282,39 @@ def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, re
     resample = any_read & (ess < config.ess_threshold * config.num_particles)
     info = RFIDTagInfo(estimate, ess, resample, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
                        jnp.sum(reads.mask, dtype=jnp.int32))
-    return _Weighed(norm.log_weights, info)
+    return _Weighed(norm.log_weights, probs, info)
 
 
-def _resample(key, particles, log_weights, config: RFIDTagConfig, params: RFIDTagParams):
-    """Alg. 6 lines 20–26 taken: systematic resampling, the refresh, the box clip; uniform weights."""
-    res = resampling.conditional_resample(
-        key, particles, log_weights, threshold=1.0, scheme="systematic",
-        refresh=config.refresh, angle_dims=(_OFFSET,), normalized=True,
-    )
-    xyz = jnp.clip(res.particles[:, :3], params.box_lo, params.box_hi)
+def _resample(key, particles, w: _Weighed, config: RFIDTagConfig, params: RFIDTagParams):
+    """Alg. 6 lines 20–26 taken: the resampling and refresh, the box clip; uniform weights.
+
+    [A]'s Gaussian refresh (lines 21–22) resamples, then draws the new set from the Gaussian
+    fitted to the resampled set. The moments of the resampled set estimate those of the
+    weighted set, so the draw here uses the weighted set's directly: the mean is the step's
+    estimate (already computed) and no ancestors are drawn. Same Gaussian up to the
+    resampling's noise, at half the cost. The kernel refresh needs the resampled set itself.
+    """
+    if config.refresh is True or config.refresh == "gaussian":
+        angle = (_OFFSET,)
+        cov = weights.cov_from_probabilities(particles, w.probs, w.info.estimate, angle)
+        new = resampling.gaussian_draw(key, w.info.estimate, cov, config.num_particles, angle)
+        log_weights = jnp.full_like(w.log_weights, -math.log(config.num_particles))
+    else:
+        res = resampling.conditional_resample(
+            key, particles, w.log_weights, threshold=1.0, scheme="systematic",
+            refresh=config.refresh, angle_dims=(_OFFSET,), normalized=True,
+        )
+        new, log_weights = res.particles, res.log_weights
+    xyz = jnp.clip(new[:, :3], params.box_lo, params.box_hi)
     if config.dims == 2:
         xyz = xyz.at[:, 2].set(params.tag_height)
-    return jnp.concatenate([xyz, res.particles[:, 3:]], axis=-1), res.log_weights
+    return jnp.concatenate([xyz, new[:, 3:]], axis=-1), log_weights
 
 
 def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
     w = _weigh(state, config, params, reads)
     particles, log_weights = jax.lax.cond(
-        w.info.resampled, lambda: _resample(key, state.particles, w.log_weights, config, params),
+        w.info.resampled, lambda: _resample(key, state.particles, w, config, params),
         lambda: (state.particles, w.log_weights))
     return RFIDTagState(particles, log_weights), w.info
 
@@ -367,9 +385,10 @@ def _run_tags_jit(key, config, params, reads, states):
     """``vmap`` of :func:`_run` over tags, except the resampling branch.
 
     Under ``vmap`` a per-tag ``lax.cond`` becomes a select that computes the resampling
-    and refresh of every tag at every step. Here the tags are reweighed together, and the
-    branch runs (for all tags, each keeping its own result only if it resamples) only at
-    steps where at least one tag resamples: a step where none does costs G likelihoods.
+    and refresh of every tag at every step. Here the tags are reweighed together (``vmap``);
+    at steps where at least one tag resamples, a ``lax.map`` over the tags runs each tag's
+    own ``cond``, so only the tags that resample pay for it. A step where none does costs
+    G likelihoods.
     """
     g = reads.mask.shape[0]
     tag_keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
@@ -381,9 +400,14 @@ def _run_tags_jit(key, config, params, reads, states):
         keys = jax.vmap(lambda k: jax.random.fold_in(k, t))(tag_keys)
 
         def resample_some():
-            p, lw = jax.vmap(_resample, in_axes=(0, 0, 0, None, None))(keys, carry.particles, w.log_weights, config, params)
-            take = w.info.resampled
-            return (jnp.where(take[:, None, None], p, carry.particles), jnp.where(take[:, None], lw, w.log_weights))
+            # one tag after another, each resampling only if it must (a vmapped cond would
+            # compute every tag's branch)
+            def one_tag(args):
+                k, particles, wg = args
+                return jax.lax.cond(wg.info.resampled, lambda: _resample(k, particles, wg, config, params),
+                                    lambda: (particles, wg.log_weights))
+
+            return jax.lax.map(one_tag, (keys, carry.particles, w))
 
         particles, log_weights = jax.lax.cond(jnp.any(w.info.resampled), resample_some,
                                               lambda: (carry.particles, w.log_weights))
@@ -397,8 +421,8 @@ def run_tags(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads
              initial_states: RFIDTagState | None = None) -> tuple[RFIDTagState, RFIDTagInfo]:
     """:func:`run` for ``G`` tags at once (one scan, ``vmap`` over tags, no Python loop); reads have mask shape ``[G, T, J]``.
 
-    The resampling branch runs only at steps where some tag resamples (:func:`_run_tags_jit`),
-    so G tags cost about G likelihood evaluations per step, not G resamplings.
+    The resampling runs tag by tag, only for the tags that resample (:func:`_run_tags_jit`),
+    so G tags cost about G likelihood evaluations per step plus their own resamplings.
 
     Tag ``g`` runs with key ``key_g = fold_in(key, g)``; when ``initial_states`` is None
     its particles start from :func:`init` with ``fold_in(key_g, 2**31 − 1)``. All tags

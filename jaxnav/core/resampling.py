@@ -266,10 +266,6 @@ def _cholesky_with_fallback(cov, jitter):
     return jnp.where(jnp.all(jnp.isfinite(chol)), chol, diag_chol)
 
 
-def _wrap_angles(x, angle_dims):
-    return _w.wrap_columns(x, angle_dims)
-
-
 def gaussian_draw(
     key: jax.Array,
     mean: jax.Array,
@@ -285,7 +281,7 @@ def gaussian_draw(
     If ``Σ`` has no Cholesky factor the draw uses its diagonal.
     """
     eps = jax.random.normal(key, (num_samples, mean.shape[-1]), mean.dtype)
-    return _wrap_angles(mean + eps @ _cholesky_with_fallback(cov, jitter).T, angle_dims)
+    return _w.wrap_columns(mean + eps @ _cholesky_with_fallback(cov, jitter).T, angle_dims)
 
 
 def gaussian_refresh(
@@ -337,7 +333,7 @@ def kernel_refresh(
     h = silverman_bandwidth(n, d) if bandwidth is None else bandwidth
     chol = _cholesky_with_fallback(_moments(particles, log_weights, angle_dims)[1], jitter)
     eps = jax.random.normal(key, (n, d), particles.dtype)
-    return _wrap_angles(particles + h * (eps @ chol.T), angle_dims)
+    return _w.wrap_columns(particles + h * (eps @ chol.T), angle_dims)
 
 
 def conditional_resample(

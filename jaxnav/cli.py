@@ -200,8 +200,8 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     if not args.name:
         print("jaxnav experiments run: name an experiment (see 'jaxnav experiments list')", file=sys.stderr)
         return 2
-    if args.runs < 1 or args.chunk < 1:
-        print("jaxnav experiments run: --runs and --chunk must be positive", file=sys.stderr)
+    if args.runs < 1 or args.chunk < 1 or (args.workers is not None and args.workers < 1):
+        print("jaxnav experiments run: --runs, --chunk and --workers must be positive", file=sys.stderr)
         return 2
     try:
         exp = registry.get(args.name)
@@ -212,7 +212,8 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
           f"output in {args.out}{' (quick variant)' if args.quick else ''}")
     try:
         result = registry.run(exp.name, args.runs, jax.random.PRNGKey(args.seed), args.out, quick=args.quick,
-                              chunk_size=args.chunk, progress=not args.no_progress)
+                              chunk_size=args.chunk, progress=not args.no_progress, workers=args.workers,
+                              fresh=args.fresh)
     except ValueError as err:
         print(f"jaxnav experiments: {err}", file=sys.stderr)
         return 2
@@ -284,6 +285,10 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--out", default="jaxnav-experiments", help="output directory for JSON, Markdown and PNG")
     xp.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     xp.add_argument("--chunk", type=int, default=25, help="runs per vmapped call (bounds memory; default 25)")
+    xp.add_argument("--workers", type=int, default=None,
+                    help="chunks run at once (default: up to 4 on a CPU, its core count; 1 on a GPU)")
+    xp.add_argument("--fresh", action="store_true",
+                    help="discard DIR/NAME.runs.json instead of resuming it (after changing the code)")
     xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
     xp.add_argument("--no-progress", action="store_true", help="no progress bar")
     xp.set_defaults(func=_cmd_experiments)

@@ -103,3 +103,61 @@ def test_cells_with_shared_args_and_map_batching():
     assert np.all(by_vmap["high"]["a"] > 90.0) and np.all(np.abs(by_vmap["low"]["a"]) < 10.0)
     with pytest.raises(ValueError, match="batching"):
         sw.sweep(cells, 3, key, progress=False, batching="pmap")
+
+
+def test_workers_change_nothing_but_the_speed(tmp_path):
+    """Chunks run concurrently are saved in chunk order: the numbers and the checkpoint are those of one worker."""
+    key = jax.random.PRNGKey(4)
+    one, two = str(tmp_path / "one.json"), str(tmp_path / "two.json")
+    serial = sw.sweep(_cells(), 7, key, one, chunk_size=2, progress=False, workers=1)
+    seen = []
+    parallel = sw.sweep(_cells(), 7, key, two, chunk_size=2, progress=False, workers=3,
+                        on_chunk=lambda c, d: seen.append((c, d)))
+    assert seen == [("noisy", 2), ("noisy", 4), ("noisy", 6), ("noisy", 7),
+                    ("shifted", 2), ("shifted", 4), ("shifted", 6), ("shifted", 7)]
+    for cell in ("noisy", "shifted"):
+        for field in ("a", "b"):
+            np.testing.assert_array_equal(parallel[cell][field], serial[cell][field])
+    assert json.load(open(one)) == json.load(open(two))
+    with pytest.raises(ValueError, match="workers"):
+        sw.sweep(_cells(), 2, key, progress=False, workers=0)
+    assert sw.default_workers() >= 1
+
+
+def test_fresh_discards_a_checkpoint_instead_of_resuming_it(tmp_path):
+    path = str(tmp_path / "runs.json")
+    key = jax.random.PRNGKey(0)
+    first = sw.sweep(_cells(), 3, key, path, progress=False)
+    data = json.load(open(path))
+    data["cells"]["noisy"]["a"] = [99.0, 99.0, 99.0]  # what a stale checkpoint from older code would hold
+    json.dump(data, open(path, "w"))
+    assert np.all(sw.sweep(_cells(), 3, key, path, progress=False)["noisy"]["a"] == 99.0)  # resumed as is
+    again = sw.sweep(_cells(), 3, key, path, progress=False, fresh=True)
+    np.testing.assert_array_equal(again["noisy"]["a"], first["noisy"]["a"])
+    assert json.load(open(path))["cells"]["noisy"]["a"] == first["noisy"]["a"].tolist()
+    # a checkpoint of another version is refused, and fresh=True overrides that too
+    data = json.load(open(path))
+    data["meta"]["jaxnav"] = "0.0.0"
+    json.dump(data, open(path, "w"))
+    with pytest.raises(ValueError, match="fresh"):
+        sw.sweep(_cells(), 3, key, path, progress=False)
+    sw.sweep(_cells(), 3, key, path, progress=False, fresh=True)
+
+
+def test_threads_asking_for_one_executable_compile_it_once():
+    import threading
+
+    from jaxnav.core.batch import compiled_vmap
+
+    traces = []
+
+    def fn(key):
+        traces.append(1)  # runs once per trace
+        return jax.random.normal(key)
+
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    exes = []
+    threads = [threading.Thread(target=lambda: exes.append(compiled_vmap(fn, keys))) for _ in range(4)]
+    [t.start() for t in threads]
+    [t.join() for t in threads]
+    assert len(traces) == 1 and all(e is exes[0] for e in exes)

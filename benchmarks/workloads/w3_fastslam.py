@@ -634,8 +634,8 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
 
         @partial(jax.jit, donate_argnums=0)
         def update_only(s):
-            means, covs, _, ll, _ = fs._update_landmarks(fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o,
-                                                         valid, ids)
+            upd, _, ll, _ = fs._update_landmarks(fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids)
+            means, covs = fs._write_rows(s.means, s.covs, upd, jnp.arange(s.poses.shape[0]))
             return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
 
         @partial(jax.jit, donate_argnums=0)

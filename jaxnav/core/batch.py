@@ -12,6 +12,7 @@ hold every chunk's output on the device.
 
 from __future__ import annotations
 
+import threading
 import weakref
 from typing import Any, Callable
 
@@ -22,6 +23,8 @@ import numpy as np
 __all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
 
 _COMPILED: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
+_COMPILING = threading.Lock()  # guards _COMPILED and _LOCKS
+_LOCKS: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
 
 
 def compiled_vmap(
@@ -51,7 +54,8 @@ def compiled_vmap(
     Calls with the same ``fn`` object, argument shapes, ``mode`` and
     ``compiler_options`` (XLA options, e.g. ``{"xla_backend_optimization_level": 0}``)
     reuse one executable, so repeated sweeps of one function compile once per
-    process. Returns the executable.
+    process; it is thread-safe, and threads asking for the same executable compile
+    it once. Returns the executable.
     """
     if mode not in ("vmap", "map"):
         raise ValueError(f"mode must be 'vmap' or 'map', got {mode!r}")
@@ -60,17 +64,20 @@ def compiled_vmap(
     leaves, tree = jax.tree_util.tree_flatten((args, shared))
     signature = (tree, tuple((np.shape(x), str(getattr(x, "dtype", None) or np.result_type(x))) for x in leaves), mode,
                  tuple(sorted(options.items())))
-    per_fn = _COMPILED.setdefault(fn, {})
-    if signature not in per_fn:
-        n = len(args)
+    with _COMPILING:
+        per_fn = _COMPILED.setdefault(fn, {})
+        lock = _LOCKS.setdefault(fn, {}).setdefault(signature, threading.Lock())
+    with lock:  # threads asking for one signature compile it once (sweep compiles cells concurrently)
+        if signature not in per_fn:
+            n = len(args)
 
-        def batched(*all_args):
-            rows, common = all_args[:n], all_args[n:]
-            if mode == "vmap":
-                return jax.vmap(lambda *r: fn(*r, *common))(*rows)
-            return jax.lax.map(lambda r: fn(*r, *common), rows)
+            def batched(*all_args):
+                rows, common = all_args[:n], all_args[n:]
+                if mode == "vmap":
+                    return jax.vmap(lambda *r: fn(*r, *common))(*rows)
+                return jax.lax.map(lambda r: fn(*r, *common), rows)
 
-        per_fn[signature] = jax.jit(batched).lower(*args, *shared).compile(compiler_options=options or None)
+            per_fn[signature] = jax.jit(batched).lower(*args, *shared).compile(compiler_options=options or None)
     return per_fn[signature]
 
 

@@ -147,6 +147,8 @@ def run(
     chunk_size: int = 25,
     progress: bool = True,
     compiler_options: dict | None = None,
+    workers: int | None = None,
+    fresh: bool = False,
 ) -> dict:
     """Run experiment ``name`` with ``runs`` seeded runs per cell; write ``NAME.json/.md/.png`` to ``out_dir``.
 
@@ -156,7 +158,9 @@ def run(
 
     The per-run results are checkpointed in ``out_dir/NAME.runs.json`` after every
     chunk: calling :func:`run` again with the same arguments resumes an interrupted
-    sweep and gives the same result as an uninterrupted one.
+    sweep and gives the same result as an uninterrupted one; ``fresh=True`` discards it
+    and starts again. ``workers`` chunks run at once (default
+    :func:`jaxnav.experiments.sweep.default_workers`).
     """
     exp = get(name)
     cells = exp.cells(quick)
@@ -165,7 +169,7 @@ def run(
         [(c.id, c.run_fn(), c.args) for c in cells], runs, key, checkpoint, chunk_size, progress,
         meta={"experiment": name, "quick": quick},
         compiler_options=(sw.FAST_COMPILE if quick else None) if compiler_options is None else compiler_options,
-        batching=exp.batching,
+        batching=exp.batching, workers=workers, fresh=fresh,
     )
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}

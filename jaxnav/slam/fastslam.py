@@ -17,12 +17,13 @@ One step:
    eqs. 10–11, in Kalman form so that ``Q_t`` need not be inverted), and the
    weight is that update's marginal likelihood ``N(z; ẑ, H_x Q_t H_xᵀ + H_m Σ_j H_mᵀ + R)``
    (their eq. 15, multiplied over observations sequentially).
-2. **Landmarks.** Each observation slot ``k`` (a ``lax.scan`` over the ``K``
-   fixed slots, so two observations of one landmark in a step are applied in
-   turn) gathers landmark ``j = ids[k]`` from every particle, runs the EKF
-   update (:func:`jaxnav.core.kalman.ekf_update`, Jacobian by ``jax.jacfwd``
-   of the model's ``mean``, vmapped over particles) and scatters it back: a
-   step costs ``O(N·K)`` and never touches unobserved landmarks. A landmark
+2. **Landmarks.** The landmarks of the ``K`` fixed observation slots are
+   gathered from every particle (``[N, K, D]``); the valid slots are applied
+   in turn (a loop over their number, so two observations of one landmark in
+   a step are applied one after the other), each an EKF update
+   (:func:`jaxnav.core.kalman.ekf_update`, Jacobian by ``jax.jacfwd`` of the
+   model's ``mean``, vmapped over particles), and the rows are scattered back:
+   a step costs ``O(N·K)`` and never touches unobserved landmarks. A landmark
    seen for the first time is initialised from the inverse model,
    ``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ`` with ``J = ∂h⁻¹/∂z`` (Thrun et al.
    Tab. 13.1 lines 9–11); it adds nothing to the weight (the default
@@ -372,44 +373,83 @@ def _landmark_init(om: ObservationModel, r: jax.Array, pose, z) -> tuple[jax.Arr
 
 
 def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids):
-    """Scan the ``K`` slots: initialise or EKF-update landmark ``ids[k]`` in every particle.
+    """Initialise or EKF-update landmark ``ids[k]`` in every particle, slot after slot.
 
-    Returns the new ``(means, covs, seen)``, per-particle log-likelihood
-    ``[N]`` of the updates (FastSLAM 1.0's weight) and the count of new landmarks.
+    The *valid* slots are applied in their order by a loop whose trip count is
+    their number. Each reads its landmark from the maps, or, when an earlier slot
+    of this step already updated it, from that slot's result, so a second
+    observation updates what the first left (sequential EKF updates, as a scan
+    over the slots would). Results go to a small slot-major buffer ``[K, N, D]``
+    and are written into the maps once, from the landmark's last slot. The maps
+    are only read inside the loop, never carried: under ``vmap`` over runs the loop
+    runs as often as the run with the most detections needs and never selects or
+    copies whole maps.
+
+    Returns the :class:`SlotUpdates` (written after resampling, :func:`_write_rows`), the new
+    ``seen``, per-particle log-likelihood ``[N]`` of the updates (FastSLAM 1.0's weight) and
+    the count of new landmarks.
     """
+    num_slots = ids.shape[0]
+    slots = jnp.arange(num_slots, dtype=jnp.int32)
+    order = jnp.argsort(~valid, stable=True).astype(jnp.int32)  # valid slots first, in slot order
+    num_valid = jnp.sum(valid).astype(jnp.int32)
+    same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
+    # the slot that last touched each slot's landmark before it (itself if none), and the landmark's last slot
+    previous = jnp.max(jnp.where(same & (slots[None, :] < slots[:, None]), slots[None, :], -1), axis=1)
+    last = jnp.max(jnp.where(same, slots[None, :], -1), axis=1)
+    n, d = means.shape[0], means.shape[2]
 
-    def body(carry, slot):
-        means, covs, seen, loglik, num_new = carry
-        j, z, ok = slot
-        mu_j = means[:, j]
-        cov_j = covs[:, j]
-        is_new = ok & ~seen[j]
-        is_upd = ok & seen[j]
-
-        def keep():
-            return mu_j, cov_j, jnp.zeros_like(loglik)
+    def body(i, carry):
+        buf_mu, buf_cov, loglik, num_new = carry
+        k = order[i]
+        j, z, prev = ids[k], obs.z[k], previous[k]
+        from_buf = prev >= 0
+        mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
+        cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
+        is_new = ~seen[j] & ~from_buf
 
         def update():
-            upd = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_j, cov_j)
+            upd = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_k, cov_k)
             return upd.mean, upd.cov, upd.log_likelihood
 
         def initialise():
             mu, cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
             return mu, cov, jnp.zeros_like(loglik)
 
-        # seen is shared by the particles, so one branch serves them all (skipped work at run time)
-        branch = jnp.where(is_new, 2, jnp.where(is_upd, 1, 0))
-        mu, cov, ll = jax.lax.switch(branch, (keep, update, initialise))
-        means = means.at[:, j].set(mu)
-        covs = covs.at[:, j].set(cov)
-        loglik = loglik + ll
-        seen = seen.at[j].set(seen[j] | ok)
-        return (means, covs, seen, loglik, num_new + is_new.astype(jnp.int32)), None
+        # seen is shared by the particles, so one branch serves them all
+        mu, cov, ll = jax.lax.cond(is_new, initialise, update)
+        return buf_mu.at[k].set(mu), buf_cov.at[k].set(cov), loglik + ll, num_new + is_new.astype(jnp.int32)
 
-    zero_ll = jnp.zeros(poses.shape[0], poses.dtype)
-    carry = (means, covs, seen, zero_ll, jnp.zeros((), jnp.int32))
-    (means, covs, seen, loglik, num_new), _ = jax.lax.scan(body, carry, (ids, obs.z, valid))
-    return means, covs, seen, loglik, num_new
+    carry = (
+        jnp.zeros((num_slots, n, d), means.dtype),
+        jnp.zeros((num_slots, n, d, d), covs.dtype),
+        jnp.zeros(n, poses.dtype),
+        jnp.zeros((), jnp.int32),
+    )
+    buf_mu, buf_cov, loglik, num_new = jax.lax.fori_loop(0, num_valid, body, carry)
+    # each landmark is written once, from its last slot; the other slots write out of range (dropped)
+    write = jnp.where(valid & (last == slots), ids, means.shape[1])
+    seen = seen.at[write].set(True, mode="drop")
+    return SlotUpdates(write, buf_mu, buf_cov), seen, loglik, num_new
+
+
+class SlotUpdates(NamedTuple):
+    """The landmarks a step updated: ``rows_*[k]`` of every particle go to landmark ``write[k]``
+    (``write[k] = M``, out of range, for slots that write nothing)."""
+
+    write: jax.Array
+    rows_mu: jax.Array
+    rows_cov: jax.Array
+
+
+def _write_rows(means, covs, upd: SlotUpdates, ancestors):
+    """Scatter the updated rows into maps already copied from ``ancestors``: particle ``n``
+    gets its ancestor's rows. Slot by slot (``K`` small scatters, in place), which avoids
+    transposing the slot-major rows."""
+    for k in range(upd.write.shape[0]):
+        means = means.at[:, upd.write[k]].set(upd.rows_mu[k][ancestors], mode="drop")
+        covs = covs.at[:, upd.write[k]].set(upd.rows_cov[k][ancestors], mode="drop")
+    return means, covs
 
 
 def _proposal(om, r, prior_mean, prior_cov, means, covs, seen, obs, valid, ids):
@@ -461,7 +501,7 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
         keys = jax.random.split(k_move, config.num_particles)
         poses, proposal_ll = jax.vmap(propose)(keys, state.poses, state.means, state.covs)
 
-    means, covs, seen, update_ll, num_new = _update_landmarks(
+    updates, seen, update_ll, num_new = _update_landmarks(
         om, r, poses, state.means, state.covs, state.seen, obs, valid, ids
     )
     loglik = update_ll if config.version == 1 else proposal_ll
@@ -477,7 +517,10 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
         scheme=config.resampling,
         normalized=True,
     )
-    means, covs = _copy_maps(means, covs, res.ancestors, config.resampling, config.map_copy)
+    # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
+    # one pass over the maps, and the old maps are never copied just to be updated
+    means, covs = _copy_maps(state.means, state.covs, res.ancestors, config.resampling, config.map_copy)
+    means, covs = _write_rows(means, covs, updates, res.ancestors)
     poses = res.particles
     info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
@@ -494,7 +537,8 @@ def _copy_maps(means, covs, ancestors, scheme: str, mode: str = "auto"):
     large = scheme in resampling.SORTED_SCHEMES and row >= IN_PLACE_MIN_FLOATS
     if mode == "in_place" or (mode == "auto" and large):
         return resampling.copy_ancestors_in_place((means, covs), ancestors)
-    return jnp.take(means, ancestors, axis=0), jnp.take(covs, ancestors, axis=0)
+    # ancestors are in range: "clip" gathers without the out-of-range select of the default "fill"
+    return jnp.take(means, ancestors, axis=0, mode="clip"), jnp.take(covs, ancestors, axis=0, mode="clip")
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))

@@ -298,6 +298,39 @@ def test_systematic_uses_one_uniform_through_inverse_cdf(getkey):
     np.testing.assert_array_equal(idx, expected)
 
 
+@pytest.mark.parametrize("n", [1, 7, 100, 500])
+def test_batched_stratified_inverse_cdf_is_the_unbatched_one(n):
+    """Under ``vmap`` the merge computes the indices, unbatched (small sets) the binary search:
+    the same indices either way, with batched or shared weights and points, zero weights too."""
+    rng = np.random.default_rng(n)
+    w = rng.dirichlet(np.full(n, 0.3), size=6).astype(np.float32)
+    w[0, ::3] = 0.0
+    u = rng.uniform(size=(6, n)).astype(np.float32)
+    points = jnp.asarray((np.arange(n) + u) / n)  # stratified points
+    one = jax.jit(R.stratified_inverse_cdf)
+    expected = np.stack([np.asarray(one(points[b], jnp.asarray(w[b]))) for b in range(6)])
+    np.testing.assert_array_equal(jax.jit(jax.vmap(R.stratified_inverse_cdf))(points, jnp.asarray(w)), expected)
+    np.testing.assert_array_equal(np.asarray(R.inverse_cdf(points[2], jnp.asarray(w[2]))), expected[2])
+    shared = jax.vmap(R.stratified_inverse_cdf, (0, None))(points, jnp.asarray(w[3]))
+    np.testing.assert_array_equal(shared[3], expected[3])
+
+
+def test_gradients_flow_through_a_resampling_step(getkey):
+    """Indices carry no gradient; the particles' values do (the batched-path rule must not break grad)."""
+
+    def loss(shift, key):
+        lw = -0.5 * (jnp.linspace(-2.0, 2.0, 50) - shift) ** 2
+        res = R.conditional_resample(key, jnp.linspace(-2.0, 2.0, 50) * shift, lw, threshold=1.0)
+        return jnp.sum(res.particles)
+
+    key = getkey()
+    g = jax.grad(loss)(0.5, key)
+    idx = R.systematic(jax.random.split(key)[0], -0.5 * (jnp.linspace(-2.0, 2.0, 50) - 0.5) ** 2, 50)
+    assert float(g) == pytest.approx(float(jnp.sum(jnp.linspace(-2.0, 2.0, 50)[idx])), rel=1e-5)
+    gs = jax.vmap(jax.grad(loss), (None, 0))(0.5, jax.random.split(key, 3))
+    assert np.all(np.isfinite(np.asarray(gs)))
+
+
 def test_inverse_cdf_edges():
     """Queries at 0 pick the first positive-weight particle; queries ≥ 1 are clamped."""
     w = jnp.array([0.0, 0.25, 0.0, 0.75, 0.0])

@@ -256,7 +256,9 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
     sensor = params.sensor
     max_tags, num_slots = config.max_tags, det.ids.shape[0]
 
-    poses = model.sample(k_move, state.poses, control, params.motion)
+    # Materialise the moved particles: otherwise XLA:CPU fuses the motion draw (erf⁻¹, logs) into
+    # the [K, I] likelihoods below and recomputes it for every slot (K times the draw).
+    poses = jax.lax.optimization_barrier(model.sample(k_move, state.poses, control, params.motion))
     pose_est = weights.mean_from_probabilities(poses, jnp.exp(state.log_weights), _POSE_ANGLE_DIMS)
 
     valid, ids, same, first, leader, num_ignored = _slots(det, max_tags)

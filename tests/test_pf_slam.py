@@ -277,3 +277,25 @@ def test_bad_detections_and_capacity_are_refused():
     with pytest.raises(ValueError, match="same number of steps"):
         dets = jax.tree_util.tree_map(lambda x: jnp.stack([x] * 3), _det([(1, 0)]))
         pf_slam.run(jax.random.PRNGKey(1), config, params, jnp.stack([STILL] * 2), dets, state)
+
+
+def test_params_are_checked_once_per_object_and_numpy_params_at_every_call():
+    """An online loop passes one immutable params object at every step: it is validated once.
+    Params with NumPy leaves can change in place, so they are validated at every call."""
+    from jaxnav.slam import _tag_slam
+
+    config = _pf(max_tags=10)
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
+    assert _tag_slam._LAST_VALID_PARAMS[0] is params
+    state, _ = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(1, 0)]))
+    bad = pf_slam.PFSLAMParams(NO_NOISE, SENSOR._replace(half_width=jnp.asarray(-1.0)))
+    with pytest.raises(ValueError, match="half_width"):
+        pf_slam.step(jax.random.PRNGKey(1), state, config, bad, STILL, _det([(1, 0)]))
+    sd = np.zeros(3, np.float32)
+    mutable = pf_slam.PFSLAMParams(OmniNoise(sd), SENSOR)
+    state, _ = pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))
+    assert _tag_slam._LAST_VALID_PARAMS[0] is not mutable
+    sd[0] = np.nan  # changed in place after a valid call
+    with pytest.raises(ValueError):
+        pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))

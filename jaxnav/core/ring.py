@@ -100,6 +100,8 @@ def ring_mean(ring: RingBuffer, last: int | None = None) -> jax.Array:
     # Slot s holds the item pushed (head - 1 - s) mod L pushes ago (age 0 = newest).
     age = (ring.head - 1 - jnp.arange(cap)) % cap
     valid = age < jnp.minimum(ring.count, window)
-    w = valid.astype(ring.data.dtype).reshape((cap,) + (1,) * (ring.data.ndim - 1))
     n = jnp.maximum(jnp.sum(valid), 1).astype(ring.data.dtype)
-    return jnp.sum(w * ring.data, axis=0) / n
+    # a select, not a product with 0/1 weights: XLA:CPU ran the weighted sum as a YNNPACK reduction
+    # 8× slower than this (PS-SLAM: 6.1 → 0.74 ms per step at 24 slots, lag 20)
+    mask = valid.reshape((cap,) + (1,) * (ring.data.ndim - 1))
+    return jnp.sum(jnp.where(mask, ring.data, 0.0), axis=0) / n

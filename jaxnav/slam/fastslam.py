@@ -394,7 +394,7 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids):
     order = jnp.argsort(~valid, stable=True).astype(jnp.int32)  # valid slots first, in slot order
     num_valid = jnp.sum(valid).astype(jnp.int32)
     same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
-    # the slot that last touched each slot's landmark before it (itself if none), and the landmark's last slot
+    # the earlier slot that last updated each slot's landmark in this step (-1: none), and the landmark's last slot
     previous = jnp.max(jnp.where(same & (slots[None, :] < slots[:, None]), slots[None, :], -1), axis=1)
     last = jnp.max(jnp.where(same, slots[None, :], -1), axis=1)
     n, d = means.shape[0], means.shape[2]

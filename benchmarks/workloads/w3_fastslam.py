@@ -357,7 +357,8 @@ def prototype_landmark_ekf(om, r: jax.Array, poses: jax.Array, mean: jax.Array, 
 
 
 def _prototype_update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids):
-    """``fastslam._update_landmarks`` with :func:`prototype_landmark_ekf` as the update branch."""
+    """The landmark update as a ``lax.scan`` over all ``K`` slots (the form ``fastslam._update_landmarks``
+    had until the valid-slot loop replaced it), with :func:`prototype_landmark_ekf` as the update branch."""
     from jaxnav.slam import fastslam as fs
 
     def body(carry, slot):

@@ -78,3 +78,28 @@ def test_stratified_inverse_cdf_equals_binary_search(n, spread):
         np.testing.assert_array_equal(fast(pts, w), ref(pts, w))
     pts = (jax.random.uniform(jax.random.PRNGKey(n), (n,)) + jnp.arange(n)) / n
     np.testing.assert_array_equal(fast(pts, w), ref(pts, w))
+
+
+@pytest.mark.parametrize(
+    "shape_a, shape_b",
+    [((2, 2), (2, 2)), ((3, 2), (2,)), ((2,), (2, 3)), ((4,), (4,)), ((2, 4), (4, 5)), ((3, 6), (6, 2)), ((2, 3, 2), (2, 2))],
+)
+def test_matmul_equals_the_matrix_product(shape_a, shape_b, getkey):
+    """Written-out products (contractions ≤ 4) and the ``@`` fallback (longer contractions, 3-D operands)
+    agree with ``@``, also under vmap and in their gradients."""
+    a = jax.random.normal(getkey(), (5,) + shape_a)
+    b = jax.random.normal(getkey(), (5,) + shape_b)
+    got = jax.vmap(fm.matmul)(a, b)
+    np.testing.assert_allclose(got, jax.vmap(jnp.matmul)(a, b), rtol=1e-5, atol=1e-6)
+    loss = lambda f: lambda x, y: jnp.sum(jnp.sin(jax.vmap(f)(x, y)))  # noqa: E731
+    ref = jax.grad(loss(jnp.matmul), argnums=(0, 1))(a, b)
+    for g, r in zip(jax.grad(loss(fm.matmul), argnums=(0, 1))(a, b), ref):
+        np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-5)
+
+
+def test_small_sum_equals_sum(getkey):
+    for n in (1, 2, 4, 9):
+        x = jax.random.normal(getkey(), (n,))
+        np.testing.assert_allclose(fm.small_sum(x), jnp.sum(x), rtol=1e-6, atol=1e-6)
+    y = jax.random.normal(getkey(), (3, 2))
+    np.testing.assert_allclose(fm.small_sum(y), jnp.sum(y), rtol=1e-6)

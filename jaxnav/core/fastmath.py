@@ -26,7 +26,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-__all__ = ["sincos", "sin", "cos", "atan2", "cumsum", "count_cumsum"]
+__all__ = ["sincos", "sin", "cos", "atan2", "cumsum", "count_cumsum", "matmul", "small_sum"]
 
 # Cody–Waite split of π/2: PIO2_1 has 8 significant bits, so k·PIO2_1 is exact for |k| < 2^16.
 _PIO2_1 = 1.5703125
@@ -179,3 +179,42 @@ def _sequential_columns(rows: jax.Array) -> jax.Array:
         acc = acc + rows[:, j]
         cols.append(acc)
     return jnp.stack(cols, axis=1)
+
+
+SMALL_CONTRACTION = 4
+"""Largest contraction :func:`matmul` and :func:`small_sum` write out as multiply-adds."""
+
+
+def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``a @ b`` for ``a [n, k]`` or ``[k]`` and ``b [k, m]`` or ``[k]``, written out as
+    ``Σ_i a[:, i] ⊗ b[i]`` when ``k ≤`` :data:`SMALL_CONTRACTION`.
+
+    Under ``vmap`` a tiny matrix product becomes a batched ``dot_general`` that XLA:CPU
+    hands to YNNPACK or its thread pool per batch element (about a microsecond each,
+    benchmark W4; the 2 × 2 products of FastSLAM's landmark EKFs cost more than its map
+    copy). Multiply-adds fuse with their neighbours into one vectorised loop. Larger
+    contractions, and operands of more than two dimensions, use ``@``.
+    """
+    k = a.shape[-1]
+    if k > SMALL_CONTRACTION or a.ndim > 2 or b.ndim > 2 or b.shape[0] != k:
+        return a @ b
+
+    def term(i: int) -> jax.Array:
+        ai, bi = a[..., i], b[i]
+        return ai[:, None] * bi[None, :] if a.ndim == 2 and b.ndim == 2 else ai * bi
+
+    out = term(0)
+    for i in range(1, k):
+        out = out + term(i)
+    return out
+
+
+def small_sum(x: jax.Array) -> jax.Array:
+    """Sum of a vector ``x [k]``, written out as additions when ``k ≤`` :data:`SMALL_CONTRACTION`
+    (a tiny reduction under ``vmap`` is a slow YNNPACK call on XLA:CPU; see :func:`matmul`)."""
+    if x.ndim != 1 or x.shape[0] > SMALL_CONTRACTION:
+        return jnp.sum(x)
+    out = x[0]
+    for i in range(1, x.shape[0]):
+        out = out + x[i]
+    return out

@@ -48,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.fastmath import matmul, small_sum
 from jaxnav.core.weights import wrap_angle
 
 __all__ = [
@@ -230,8 +231,8 @@ def gaussian_log_pdf(residual: jax.Array, cov: jax.Array) -> tuple[jax.Array, ja
     """``(log N(residual; 0, cov), residualᵀ cov⁻¹ residual)`` via a Cholesky solve."""
     chol, _ = _cholesky(cov)
     white = _solve_lower(chol, residual)
-    maha = jnp.sum(white * white)
-    log_det = 2.0 * jnp.sum(jnp.log(jnp.diagonal(chol)))
+    maha = small_sum(white * white)
+    log_det = 2.0 * small_sum(jnp.log(jnp.diagonal(chol)))
     return -0.5 * (maha + log_det + residual.shape[-1] * math.log(2.0 * math.pi)), maha
 
 
@@ -249,8 +250,8 @@ def _joseph(cov: jax.Array, gain: jax.Array, jac: jax.Array, noise_cov: jax.Arra
     formed: under ``vmap`` XLA:CPU hands each tiny batched matrix product to
     its thread pool at about a microsecond per batch element (W4).
     """
-    m_ = cov - gain @ (jac @ cov)
-    return ensure_pd(m_ - (m_ @ jac.T) @ gain.T + gain @ noise_cov @ gain.T)
+    m_ = cov - matmul(gain, matmul(jac, cov))
+    return ensure_pd(m_ - matmul(matmul(m_, jac.T), gain.T) + matmul(matmul(gain, noise_cov), gain.T))
 
 
 def _result(prior: Gaussian, posterior: Gaussian, valid, gate, nis, log_lik, cholesky_failed) -> UpdateResult:
@@ -280,7 +281,7 @@ def ekf_predict(
     """EKF prediction ([A] Alg. 1 lines 2–3): ``x' = f(x)``, ``P' = F P Fᵀ + Q``, ``F = jacfwd(f)``."""
     x_new = f(mean)
     jac = jax.jacfwd(f)(mean)
-    return Gaussian(x_new, ensure_pd(jac @ cov @ jac.T + process_cov))
+    return Gaussian(x_new, ensure_pd(matmul(matmul(jac, cov), jac.T) + process_cov))
 
 
 def ekf_update(
@@ -313,10 +314,10 @@ def ekf_update(
     jac = jax.jacfwd(hx)(mean)
     z_safe = jnp.where(valid, z, z_hat)
     y = _diff(z_safe, z_hat, obs_angle_dims)
-    s = symmetrize(jac @ cov @ jac.T + noise_cov)
+    s = symmetrize(matmul(matmul(jac, cov), jac.T) + noise_cov)
     log_lik, nis = gaussian_log_pdf(y, s)
-    gain = _gain(cov @ jac.T, s)
-    new = Gaussian(_wrap(mean + gain @ y, state_angle_dims), _joseph(cov, gain, jac, noise_cov))
+    gain = _gain(matmul(cov, jac.T), s)
+    new = Gaussian(_wrap(mean + matmul(gain, y), state_angle_dims), _joseph(cov, gain, jac, noise_cov))
     return _result(Gaussian(mean, cov), new, valid, gate, nis, log_lik, jnp.zeros((), bool))
 
 

@@ -153,6 +153,85 @@ def test_new_landmarks_duplicates_and_unknown_ids(getkey):
     assert np.all(np.isfinite(np.asarray(state.means))) and np.all(np.isfinite(np.asarray(state.log_weights)))
 
 
+def _sequential_reference(om, r, poses, means, covs, seen, obs, m):
+    """The landmark update written the plain way: slot after slot on whole maps (host loop)."""
+    loglik = jnp.zeros(poses.shape[0])
+    num_new = 0
+    for k in range(obs.ids.shape[0]):
+        j = int(obs.ids[k])
+        if not bool(obs.mask[k]) or not 0 <= j < m:
+            continue
+        if not bool(seen[j]):
+            mu, cov = jax.vmap(lambda p: fs._landmark_init(om, r, p, obs.z[k]))(poses)
+            seen = seen.at[j].set(True)
+            num_new += 1
+        else:
+            u = jax.vmap(lambda p, mu, c: fs._landmark_ekf(om, r, p, mu, c, obs.z[k]))(poses, means[:, j], covs[:, j])
+            mu, cov, loglik = u.mean, u.cov, loglik + u.log_likelihood
+        means, covs = means.at[:, j].set(mu), covs.at[:, j].set(cov)
+    return means, covs, seen, loglik, num_new
+
+
+@pytest.mark.parametrize("lanes", [1, 2, 3, 12])
+def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lanes, getkey):
+    """Vectorised first observations plus the loop for the rest (repeats, overflow) give what
+    applying the slots one after the other gives: new landmarks, repeats of new and of mapped
+    landmarks (three times), unknown ids and masked NaN slots, for 1, 2, 3 and all lanes."""
+    n, m = 8, 6
+    om, r = fs.RANGE_BEARING, jnp.diag(SENSOR.sd**2)
+    rng = np.random.default_rng(3)
+    poses = jnp.asarray(X0 + rng.normal(0, 0.05, (n, 3)), jnp.float32)
+    lms = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
+    means = jnp.asarray(lms + rng.normal(0, 0.1, (n, m, 2)), jnp.float32)
+    covs = jnp.broadcast_to(0.02 * jnp.eye(2), (n, m, 2, 2)) * jnp.asarray(rng.uniform(0.5, 2, (n, m, 1, 1)), jnp.float32)
+    seen = jnp.asarray([True, True, True, False, False, True])
+    ids = jnp.asarray([3, 0, 3, 9, 1, 0, 4, 2, 0, 5, -1, 1], jnp.int32)
+    mask = jnp.asarray([True, True, True, True, True, True, True, True, True, False, True, True])
+    z = jax.vmap(lambda j: lm.predict(X0, lms[j]))(jnp.clip(ids, 0, m - 1)) + jnp.asarray(rng.normal(0, 0.05, (12, 2)), jnp.float32)
+    z = jnp.where(mask[:, None], z, jnp.nan)
+    obs = lm.RangeBearingObs(ids, z, mask)
+    valid, safe_ids, _ = fs._slot_valid(obs, m)
+    upd, new_seen, ll, num_new = jax.jit(fs._update_landmarks, static_argnums=(0, 9))(
+        om, r, poses, means, covs, seen, obs, valid, safe_ids, lanes
+    )
+    got_means, got_covs = fs._write_rows(means, covs, upd, jnp.arange(n))
+    ref_means, ref_covs, ref_seen, ref_ll, ref_new = _sequential_reference(om, r, poses, means, covs, seen, obs, m)
+    np.testing.assert_allclose(got_means, ref_means, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(got_covs, ref_covs, rtol=1e-4, atol=1e-8)
+    np.testing.assert_array_equal(new_seen, ref_seen)
+    np.testing.assert_allclose(ll, ref_ll, rtol=1e-5, atol=1e-4)
+    assert int(num_new) == ref_new == 2
+    # the reference itself moved landmarks 0 (three observations), 1, 2, 3 and left the masked 5 alone
+    assert not np.allclose(ref_means[:, [0, 1, 2, 3]], means[:, [0, 1, 2, 3]]) and np.array_equal(ref_means[:, 5], means[:, 5])
+
+
+def test_footprint_closed_form_equals_the_generic_ekf(getkey):
+    """HF_FOOTPRINT's closed-form landmark update and initialisation give what the generic EKF
+    (Jacobians by autodiff, Cholesky factorisations) gives, in float64 to 1e-10; a model without
+    the hooks falls back to the generic path."""
+    from jaxnav.models import hf_rfid
+
+    generic = fs.HF_FOOTPRINT._replace(update=None, initialise=None)
+    assert fs.HF_FOOTPRINT.update is not None and generic.update is None
+    with jax.enable_x64(True):
+        n = 64
+        poses = jax.random.uniform(getkey(), (n, 3), jnp.float64, -3.0, 3.0)
+        means = poses[:, :2] + jax.random.normal(getkey(), (n, 2), jnp.float64) * 0.05
+        a = jax.random.normal(getkey(), (n, 2, 2), jnp.float64) * 0.02
+        covs = a @ jnp.swapaxes(a, 1, 2) + 1e-5 * jnp.eye(2)
+        zs = jax.random.normal(getkey(), (n, 2), jnp.float64) * 0.05
+        r = hf_rfid.footprint_cov(hf_rfid.reader_params(0.06))
+        r = jnp.asarray(r, jnp.float64).at[0, 0].multiply(2.0)  # anisotropic, so that the rotation matters
+        update = lambda om: jax.vmap(lambda p, m, c, z: fs._landmark_ekf(om, r, p, m, c, z))  # noqa: E731
+        got, ref = update(fs.HF_FOOTPRINT)(poses, means, covs, zs), update(generic)(poses, means, covs, zs)
+        for field in ("mean", "cov", "nis", "log_likelihood"):
+            np.testing.assert_allclose(getattr(got, field), getattr(ref, field), rtol=1e-10, atol=1e-12, err_msg=field)
+        assert np.all(np.abs(np.asarray(got.mean - means)).sum(-1) > 1e-6)  # not a comparison of two no-ops
+        init = lambda om: jax.vmap(lambda p, z: fs._landmark_init(om, r, p, z))  # noqa: E731
+        for g, f in zip(init(fs.HF_FOOTPRINT)(poses, zs), init(generic)(poses, zs)):
+            np.testing.assert_allclose(g, f, rtol=1e-10, atol=1e-14)
+
+
 def _robot_frame_model():
     """A second sensor, position of the landmark in the robot frame (the HF-RFID kind of measurement)."""
 

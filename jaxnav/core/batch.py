@@ -158,19 +158,22 @@ def _pad_slice(x: Any, start: int, stop: int, size: int) -> jax.Array:
 
 
 def scan_filter(step: Callable, config: Any, params: Any, controls: jax.Array, observations: Any, state: Any,
-                key: jax.Array | None = None) -> tuple[Any, Any]:
+                key: jax.Array | None = None, unroll: int = 1) -> tuple[Any, Any]:
     """Every filter's ``run``: one ``lax.scan`` of ``step`` over time.
 
     With a ``key``, step ``t`` is ``step(fold_in(key, t), state, config, params, u_t, z_t)`` (so a
     Python loop of ``step`` calls with those keys reproduces the scan); without one the filter is
     deterministic and ``step(state, config, params, u_t, z_t)``. Returns ``(final_state, trace)``.
+    ``unroll`` steps share one loop iteration (``lax.scan``'s ``unroll``): with 2, a state that a
+    step rebuilds out of place (a gather) is written straight into the loop's buffer every
+    second step instead of being copied back at every step, for a longer compilation.
     """
     if key is None:
-        return jax.lax.scan(lambda s, x: step(s, config, params, *x), state, (controls, observations))
+        return jax.lax.scan(lambda s, x: step(s, config, params, *x), state, (controls, observations), unroll=unroll)
 
     def body(carry, inputs):
         t, u, z = inputs
         return step(jax.random.fold_in(key, t), carry, config, params, u, z)
 
-    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations))
+    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations), unroll=unroll)
 

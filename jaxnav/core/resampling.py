@@ -429,6 +429,7 @@ def conditional_resample(
     return ResampleResult(new_particles, new_lw, ancestors, do_resample)
 
 
+@jax.custom_jvp
 def copy_ancestors_in_place(arrays: tuple, ancestors: jax.Array) -> tuple:
     """``tuple(a[ancestors] for a in arrays)`` computed in place, for *sorted* ``ancestors``.
 
@@ -445,7 +446,8 @@ def copy_ancestors_in_place(arrays: tuple, ancestors: jax.Array) -> tuple:
     doubled the time of a W3 step at M = 4000, N = 1000. The loop costs about
     a microsecond per copied row, so use it only for large rows. Ancestors of
     :data:`SORTED_SCHEMES` are sorted; other schemes' are not (the result
-    would then be wrong).
+    would then be wrong). Differentiable in ``arrays``, forward and reverse mode (a custom
+    JVP: the gathered tangents), although the loop itself could not be transposed.
     """
     m = ancestors.shape[0]
     a = ancestors.astype(jnp.int32)
@@ -463,3 +465,13 @@ def copy_ancestors_in_place(arrays: tuple, ancestors: jax.Array) -> tuple:
         )
 
     return jax.lax.fori_loop(0, count, body, tuple(arrays))
+
+
+@copy_ancestors_in_place.defjvp
+def _copy_ancestors_in_place_jvp(primals, tangents):
+    # The loop's trip count is data-dependent, which reverse mode cannot transpose; the copy is
+    # the gather ``a[ancestors]``, so its tangent is the gathered tangent (a gather transposes
+    # to a scatter-add).
+    arrays, ancestors = primals
+    out = copy_ancestors_in_place(arrays, ancestors)
+    return out, tuple(jnp.take(t, ancestors, axis=0) for t in tangents[0])

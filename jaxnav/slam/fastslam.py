@@ -436,6 +436,59 @@ def _landmark_init(om: ObservationModel, r: jax.Array, pose, z) -> tuple[jax.Arr
     return om.inverse(pose, z), kalman.ensure_pd(fastmath.matmul(fastmath.matmul(jac, r), jac.T))
 
 
+def _slot_order(valid, ids):
+    """``(previous, last)``: for each slot the earlier slot of this step that last observed its
+    landmark (−1: none), and the landmark's last slot."""
+    slots = jnp.arange(ids.shape[0], dtype=jnp.int32)
+    same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
+    previous = jnp.max(jnp.where(same & (slots[None, :] < slots[:, None]), slots[None, :], -1), axis=1)
+    last = jnp.max(jnp.where(same, slots[None, :], -1), axis=1)
+    return previous, last
+
+
+def _finish_slots(valid, ids, last, seen, num_landmarks, buf_mu, buf_cov):
+    """Each landmark is written once, from its last slot; the other slots write out of range (dropped)."""
+    write = jnp.where(valid & (last == jnp.arange(ids.shape[0])), ids, num_landmarks)
+    return SlotUpdates(write, buf_mu, buf_cov), seen.at[write].set(True, mode="drop")
+
+
+def _update_landmarks_in_order(om, r, poses, means, covs, seen, obs, valid, ids):
+    """:func:`_update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
+
+    The same sequential updates, slot after slot, with a fixed trip count (a loop whose
+    trip count depends on the data cannot be differentiated in reverse mode). Every slot
+    costs an update and an initialisation under ``vmap``, so it only serves derivatives.
+    """
+    previous, last = _slot_order(valid, ids)
+    n, d = means.shape[0], means.shape[2]
+
+    def body(carry, k):
+        buf_mu, buf_cov, loglik, num_new = carry
+        j, prev = ids[k], previous[k]
+        z = jnp.where(valid[k], obs.z[k], 0.0)
+        from_buf = prev >= 0
+        mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
+        cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
+        new = valid[k] & ~seen[j] & ~from_buf
+        upd = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_k, cov_k)
+        ini_mu, ini_cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
+        mu = jnp.where(new, ini_mu, upd.mean)
+        cov = jnp.where(new, ini_cov, upd.cov)
+        ll = jnp.where(valid[k] & ~new, upd.log_likelihood, 0.0)
+        return (buf_mu.at[k].set(mu), buf_cov.at[k].set(cov), loglik + ll, num_new + new.astype(jnp.int32)), None
+
+    carry = (
+        jnp.zeros((ids.shape[0], n, d), means.dtype),
+        jnp.zeros((ids.shape[0], n, d, d), covs.dtype),
+        jnp.zeros(n, poses.dtype),
+        jnp.zeros((), jnp.int32),
+    )
+    (buf_mu, buf_cov, loglik, num_new), _ = jax.lax.scan(body, carry, jnp.arange(ids.shape[0]))
+    updates, seen = _finish_slots(valid, ids, last, seen, means.shape[1], buf_mu, buf_cov)
+    return updates, seen, loglik, num_new
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0, 9))
 def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DEFAULT_PARALLEL_SLOTS):
     """Initialise or EKF-update landmark ``ids[k]`` in every particle, as if slot after slot.
 
@@ -453,14 +506,11 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
 
     Returns the :class:`SlotUpdates` (written after resampling, :func:`_write_rows`), the new
     ``seen``, per-particle log-likelihood ``[N]`` of the updates (FastSLAM 1.0's weight) and
-    the count of new landmarks.
+    the count of new landmarks. Derivatives, forward and reverse, are those of
+    :func:`_update_landmarks_in_order` (a custom JVP).
     """
     num_slots = ids.shape[0]
-    slots = jnp.arange(num_slots, dtype=jnp.int32)
-    same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
-    # the earlier slot that last updated each slot's landmark in this step (-1: none), and the landmark's last slot
-    previous = jnp.max(jnp.where(same & (slots[None, :] < slots[:, None]), slots[None, :], -1), axis=1)
-    last = jnp.max(jnp.where(same, slots[None, :], -1), axis=1)
+    previous, last = _slot_order(valid, ids)
     first = valid & (previous < 0)
     n, d = means.shape[0], means.shape[2]
 
@@ -515,10 +565,15 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
 
     num_rest = jnp.sum(rest).astype(jnp.int32)
     buf_mu, buf_cov, loglik, num_new = jax.lax.fori_loop(0, num_rest, body, (buf_mu, buf_cov, loglik, num_new))
-    # each landmark is written once, from its last slot; the other slots write out of range (dropped)
-    write = jnp.where(valid & (last == slots), ids, means.shape[1])
-    seen = seen.at[write].set(True, mode="drop")
-    return SlotUpdates(write, buf_mu, buf_cov), seen, loglik, num_new
+    updates, seen = _finish_slots(valid, ids, last, seen, means.shape[1], buf_mu, buf_cov)
+    return updates, seen, loglik, num_new
+
+
+@_update_landmarks.defjvp
+def _update_landmarks_jvp(om, lanes, primals, tangents):
+    # The loop above has a data-dependent trip count, which reverse mode cannot transpose:
+    # derivatives (forward and reverse) come from the same updates as a fixed-length scan.
+    return jax.jvp(partial(_update_landmarks_in_order, om), primals, tangents)
 
 
 class SlotUpdates(NamedTuple):

@@ -461,10 +461,14 @@ def _jsonable(x: Any) -> Any:
 
 
 def write_json(path: str, payload: dict) -> None:
+    """Write ``payload`` atomically (a temporary file renamed over ``path``): a run killed while
+    writing leaves the previous file whole."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    with open(path, "w") as f:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as f:
         json.dump(_jsonable(payload), f, indent=1)
         f.write("\n")
+    os.replace(tmp, path)
 
 
 def size_label(size: dict) -> str:

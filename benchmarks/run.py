@@ -16,6 +16,8 @@ import sys
 import time
 import traceback
 
+import jax
+
 from benchmarks import harness
 from benchmarks.harness import Context
 from benchmarks.workloads import discover
@@ -68,6 +70,20 @@ def main(argv=None) -> int:
                   retries=args.retries, disturbed=DISTURBED)
 
     rows: list[dict] = []
+
+    def payload(complete: bool) -> dict:
+        return {
+            "machine": machine,
+            "versions": vers,
+            "options": {"only": args.only, "quick": args.quick, "repeats": args.repeats,
+                        "command": " ".join([os.path.basename(sys.executable), "-m", "benchmarks.run"] + sys.argv[1:])},
+            "workloads": {n: {"title": w.title, "floor": w.floor_doc} for n, w in selected.items()},
+            "notes": ctx.notes,
+            "complete": complete,
+            "total_wall_s": time.perf_counter() - t_start,
+            "rows": rows,
+        }
+
     for name, wl in selected.items():
         for size in wl.sizes_for(args.quick):
             label = harness.size_label(size)
@@ -93,6 +109,12 @@ def main(argv=None) -> int:
             busy = "" if load is None else f", other processes {load:.2f} cores"
             print(f"    ({time.perf_counter() - t0:.1f} s{busy})", flush=True)
             rows.extend(new)
+            # Written after every size, so a run that dies (an abort in XLA cannot be caught: a full
+            # S1 run once died at 5000 particles with "LLVM ERROR: Unable to allocate section
+            # memory") keeps what it measured; "complete" stays false until the end.
+            harness.write_json(args.out, payload(complete=False))
+            # Drop the compiled executables of finished sizes: a long run need not keep them.
+            jax.clear_caches()
 
     src_end = harness.jaxnav_source_state()
     if (src_end["jaxnav_git"], src_end["jaxnav_dirty"]) != (vers["jaxnav_git"], vers["jaxnav_dirty"]):
@@ -102,18 +124,8 @@ def main(argv=None) -> int:
     if vers.get("jaxnav_dirty"):
         ctx.note("jaxnav/ had uncommitted changes when the run started")
     harness.annotate_ratios(rows)
-    payload = {
-        "machine": machine,
-        "versions": vers,
-        "options": {"only": args.only, "quick": args.quick, "repeats": args.repeats,
-                    "command": " ".join([os.path.basename(sys.executable), "-m", "benchmarks.run"] + sys.argv[1:])},
-        "workloads": {n: {"title": w.title, "floor": w.floor_doc} for n, w in selected.items()},
-        "notes": ctx.notes,
-        "total_wall_s": None,
-        "rows": rows,
-    }
-    payload["total_wall_s"] = time.perf_counter() - t_start
-    harness.write_json(args.out, payload)
+    final = payload(complete=True)
+    harness.write_json(args.out, final)
     print()
     print(harness.format_table(rows))
     print()
@@ -121,7 +133,7 @@ def main(argv=None) -> int:
     if not args.no_plot:
         from benchmarks.plot import plot_all
 
-        for p in plot_all(payload, args.out, selected):
+        for p in plot_all(final, args.out, selected):
             print(f"wrote {p}")
     print(f"total {time.perf_counter() - t_start:.0f} s")
     return 0

@@ -452,37 +452,55 @@ def _finish_slots(valid, ids, last, seen, num_landmarks, buf_mu, buf_cov):
     return SlotUpdates(write, buf_mu, buf_cov), seen.at[write].set(True, mode="drop")
 
 
-def _update_landmarks_in_order(om, r, poses, means, covs, seen, obs, valid, ids):
-    """:func:`_update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
+def _apply_slot(om, r, poses, means, covs, seen, obs, ids, previous, k, carry):
+    """Apply valid slot ``k`` into the slot buffers ``carry = (mu [K, N, D], cov [K, N, D, D],
+    loglik [N], num_new)``: its landmark is read from the maps, or from the buffer of the earlier
+    slot of this step that updated it (``previous[k]``), initialised if new, else EKF-updated."""
+    buf_mu, buf_cov, loglik, num_new = carry
+    j, z, prev = ids[k], obs.z[k], previous[k]
+    from_buf = prev >= 0
+    mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
+    cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
+    new = ~seen[j] & ~from_buf
 
-    The same sequential updates, slot after slot, with a fixed trip count (a loop whose
-    trip count depends on the data cannot be differentiated in reverse mode). Every slot
-    costs an update and an initialisation under ``vmap``, so it only serves derivatives.
-    """
-    previous, last = _slot_order(valid, ids)
+    def update():
+        u = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_k, cov_k)
+        return u.mean, u.cov, u.log_likelihood
+
+    def init():
+        mu, cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
+        return mu, cov, jnp.zeros_like(loglik)
+
+    # seen is shared by the particles, so one branch serves them all
+    mu, cov, ll = jax.lax.cond(new, init, update)
+    return buf_mu.at[k].set(mu), buf_cov.at[k].set(cov), loglik + ll, num_new + new.astype(jnp.int32)
+
+
+def _empty_slot_buffers(num_slots, means, covs, poses):
     n, d = means.shape[0], means.shape[2]
-
-    def body(carry, k):
-        buf_mu, buf_cov, loglik, num_new = carry
-        j, prev = ids[k], previous[k]
-        z = jnp.where(valid[k], obs.z[k], 0.0)
-        from_buf = prev >= 0
-        mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
-        cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
-        new = valid[k] & ~seen[j] & ~from_buf
-        upd = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_k, cov_k)
-        ini_mu, ini_cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
-        mu = jnp.where(new, ini_mu, upd.mean)
-        cov = jnp.where(new, ini_cov, upd.cov)
-        ll = jnp.where(valid[k] & ~new, upd.log_likelihood, 0.0)
-        return (buf_mu.at[k].set(mu), buf_cov.at[k].set(cov), loglik + ll, num_new + new.astype(jnp.int32)), None
-
-    carry = (
-        jnp.zeros((ids.shape[0], n, d), means.dtype),
-        jnp.zeros((ids.shape[0], n, d, d), covs.dtype),
+    return (
+        jnp.zeros((num_slots, n, d), means.dtype),
+        jnp.zeros((num_slots, n, d, d), covs.dtype),
         jnp.zeros(n, poses.dtype),
         jnp.zeros((), jnp.int32),
     )
+
+
+def _update_landmarks_in_order(om, r, poses, means, covs, seen, obs, valid, ids):
+    """:func:`_update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
+
+    The same sequential updates (:func:`_apply_slot`), slot after slot, with a fixed trip
+    count: a loop whose trip count depends on the data cannot be differentiated in reverse
+    mode. Under ``vmap`` every slot then costs an update and an initialisation, so it only
+    serves derivatives.
+    """
+    previous, last = _slot_order(valid, ids)
+
+    def body(carry, k):
+        apply = partial(_apply_slot, om, r, poses, means, covs, seen, obs, ids, previous, k)
+        return jax.lax.cond(valid[k], apply, lambda c: c, carry), None
+
+    carry = _empty_slot_buffers(ids.shape[0], means, covs, poses)
     (buf_mu, buf_cov, loglik, num_new), _ = jax.lax.scan(body, carry, jnp.arange(ids.shape[0]))
     updates, seen = _finish_slots(valid, ids, last, seen, means.shape[1], buf_mu, buf_cov)
     return updates, seen, loglik, num_new
@@ -512,13 +530,6 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     num_slots = ids.shape[0]
     previous, last = _slot_order(valid, ids)
     first = valid & (previous < 0)
-    n, d = means.shape[0], means.shape[2]
-
-    def ekf(z):
-        return jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))
-
-    def initialise(z):
-        return jax.vmap(lambda p: _landmark_init(om, r, p, z))
 
     # 1. up to `lanes` first observations at once (both branches computed, one kept: cheap next to a loop)
     lane = jnp.argsort(~first, stable=True)[: min(lanes, num_slots)].astype(jnp.int32)
@@ -527,41 +538,24 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     z = jnp.where(lane_ok[:, None], obs.z[lane], 0.0)  # masked slots' z are never read
     mu0 = jnp.swapaxes(jnp.take(means, lane_ids, axis=1, mode="clip"), 0, 1)  # [L, N, D]
     cov0 = jnp.swapaxes(jnp.take(covs, lane_ids, axis=1, mode="clip"), 0, 1)
-    upd = jax.vmap(lambda zz, mu, c: ekf(zz)(poses, mu, c))(z, mu0, cov0)
-    ini_mu, ini_cov = jax.vmap(lambda zz: initialise(zz)(poses))(z)
+    particles_ekf = jax.vmap(lambda zz, mu, c: jax.vmap(lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, zz))(poses, mu, c))
+    upd = particles_ekf(z, mu0, cov0)
+    ini_mu, ini_cov = jax.vmap(lambda zz: jax.vmap(lambda p: _landmark_init(om, r, p, zz))(poses))(z)
     is_new = lane_new[:, None, None]
     lane_mu = jnp.where(is_new, ini_mu, upd.mean)
     lane_cov = jnp.where(is_new[..., None], ini_cov, upd.cov)
     loglik = jnp.sum(jnp.where((lane_ok & ~lane_new)[:, None], upd.log_likelihood, 0.0), axis=0)
     num_new = jnp.sum(lane_ok & lane_new).astype(jnp.int32)
     to = jnp.where(lane_ok, lane, num_slots)
-    buf_mu = jnp.zeros((num_slots, n, d), means.dtype).at[to].set(lane_mu, mode="drop")
-    buf_cov = jnp.zeros((num_slots, n, d, d), covs.dtype).at[to].set(lane_cov, mode="drop")
+    buf_mu, buf_cov, _, _ = _empty_slot_buffers(num_slots, means, covs, poses)
+    buf_mu, buf_cov = buf_mu.at[to].set(lane_mu, mode="drop"), buf_cov.at[to].set(lane_cov, mode="drop")
 
     # 2. the other valid slots, in slot order
     rest = valid & ~jnp.zeros(num_slots, bool).at[to].set(True, mode="drop")
     order = jnp.argsort(~rest, stable=True).astype(jnp.int32)
 
     def body(i, carry):
-        buf_mu, buf_cov, loglik, num_new = carry
-        k = order[i]
-        j, zk, prev = ids[k], obs.z[k], previous[k]
-        from_buf = prev >= 0
-        mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
-        cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
-        new = ~seen[j] & ~from_buf
-
-        def update():
-            u = ekf(zk)(poses, mu_k, cov_k)
-            return u.mean, u.cov, u.log_likelihood
-
-        def init():
-            mu, cov = initialise(zk)(poses)
-            return mu, cov, jnp.zeros_like(loglik)
-
-        # seen is shared by the particles, so one branch serves them all
-        mu, cov, ll = jax.lax.cond(new, init, update)
-        return buf_mu.at[k].set(mu), buf_cov.at[k].set(cov), loglik + ll, num_new + new.astype(jnp.int32)
+        return _apply_slot(om, r, poses, means, covs, seen, obs, ids, previous, order[i], carry)
 
     num_rest = jnp.sum(rest).astype(jnp.int32)
     buf_mu, buf_cov, loglik, num_new = jax.lax.fori_loop(0, num_rest, body, (buf_mu, buf_cov, loglik, num_new))

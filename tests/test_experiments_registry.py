@@ -33,6 +33,28 @@ def test_cells_have_unique_ids_and_valid_settings(name, quick):
             assert c.setting.robot_particles <= 200
 
 
+@pytest.mark.parametrize("quick, given, expected", [
+    (False, None, "LIGHT_COMPILE"), (True, None, "FAST_COMPILE"), (False, {"xla_backend_optimization_level": 2}, "given"),
+])
+def test_compiler_options_default_to_the_experiments_own(quick, given, expected, monkeypatch):
+    """A full HF-RFID SLAM sweep compiles with LIGHT_COMPILE, a quick one with FAST_COMPILE,
+    and options passed by the caller win."""
+    from jaxnav.experiments import sweep as sw
+
+    seen = {}
+
+    def fake_sweep(cells, runs, key, path, chunk_size, progress, **kwargs):
+        seen.update(kwargs)
+        return _fake_errors(registry.get("table-3.1").cells(quick), runs, np.random.default_rng(0))
+
+    monkeypatch.setattr(sw, "sweep", fake_sweep)
+    registry.run("table-3.1", 3, None, quick=quick, compiler_options=given)
+    want = given if expected == "given" else getattr(sw, expected)
+    assert seen["compiler_options"] == want
+    assert registry.get("fig-4.4").compiler_options == sw.LIGHT_COMPILE
+    assert registry.get("fig-5.3").compiler_options is None  # the UHF experiments keep XLA's defaults
+
+
 def _fake_errors(cells, runs, rng):
     return {c.id: {col: rng.uniform(10, 50, runs) for col in ERROR_COLUMNS} for c in cells}
 

@@ -206,6 +206,28 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     assert not np.allclose(ref_means[:, [0, 1, 2, 3]], means[:, [0, 1, 2, 3]]) and np.array_equal(ref_means[:, 5], means[:, 5])
 
 
+def test_write_rows_gives_each_particle_its_ancestors_rows(getkey):
+    """The step's updated rows land in the resampled maps: particle ``n`` gets row ``ancestors[n]``
+    of every slot that writes, slots writing ``M`` are dropped, other landmarks keep the copied maps."""
+    n, m, k = 6, 5, 4
+    rng = np.random.default_rng(0)
+    means = jnp.asarray(rng.normal(size=(n, m, 2)), jnp.float32)
+    covs = jnp.asarray(rng.normal(size=(n, m, 2, 2)), jnp.float32)
+    rows_mu = jnp.asarray(rng.normal(size=(k, n, 2)), jnp.float32)
+    rows_cov = jnp.asarray(rng.normal(size=(k, n, 2, 2)), jnp.float32)
+    write = jnp.asarray([3, m, 0, m], jnp.int32)
+    ancestors = jnp.asarray([2, 2, 0, 5, 1, 1], jnp.int32)
+    got_mu, got_cov = fs._write_rows(means, covs, fs.SlotUpdates(write, rows_mu, rows_cov), ancestors)
+    want_mu, want_cov = np.array(means), np.array(covs)
+    for slot, j in enumerate(np.asarray(write)):
+        if j < m:
+            want_mu[:, j] = np.asarray(rows_mu)[slot][np.asarray(ancestors)]
+            want_cov[:, j] = np.asarray(rows_cov)[slot][np.asarray(ancestors)]
+    np.testing.assert_array_equal(got_mu, want_mu)
+    np.testing.assert_array_equal(got_cov, want_cov)
+    assert not np.array_equal(want_mu[:, 3], np.asarray(means)[:, 3])
+
+
 def test_footprint_closed_form_equals_the_generic_ekf(getkey):
     """HF_FOOTPRINT's closed-form landmark update and initialisation give what the generic EKF
     (Jacobians by autodiff, Cholesky factorisations) gives, in float64 to 1e-10; a model without
@@ -297,15 +319,19 @@ def test_generic_observation_model(getkey):
     assert np.asarray(seen).all() and err.mean() < 0.15, err
 
 
-def test_step_loop_equals_run(getkey):
-    sims = _sims(getkey(), 1, 12)
+@pytest.mark.parametrize("num_landmarks, steps, unroll", [(8, 12, 1), (100, 13, 2)])
+def test_step_loop_equals_run(num_landmarks, steps, unroll, getkey):
+    """``run`` (one step per scan iteration for small maps, two for gathered maps of at least
+    UNROLL_MIN_FLOATS per particle, with an odd step count) equals a loop of ``step``."""
+    sims = _sims(getkey(), 1, steps)
     sim = jax.tree_util.tree_map(lambda x: x[0], sims)
-    cfg = fs.FastSLAMConfig(num_particles=32, num_landmarks=8, version=2)
+    cfg = fs.FastSLAMConfig(num_particles=32, num_landmarks=num_landmarks, version=2)
+    assert fs._run_unroll(cfg) == unroll
     key = getkey()
     init_key = getkey()
     final, trace = fs.run(key, cfg, PARAMS, sim.controls, sim.observations, fs.init(init_key, cfg, PARAMS, X0))
     state = fs.init(init_key, cfg, PARAMS, X0)
-    for t in range(12):
+    for t in range(steps):
         obs_t = jax.tree_util.tree_map(lambda x: x[t], sim.observations)
         state, info = fs.step(jax.random.fold_in(key, t), state, cfg, PARAMS, sim.controls[t], obs_t)
         np.testing.assert_allclose(info.estimate, trace.estimate[t], rtol=1e-4, atol=1e-4)

@@ -108,7 +108,8 @@ def curve_experiment(name, title, x_label, cells, summarize, notes="", x_log=Fal
     def summarize_all(raw, cell_list, quick):
         return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}
 
-    return register(Experiment(name, title, cells, summarize_all, render_curves, markdown_curves, plot_curves, notes))
+    return register(Experiment(name, title, cells, summarize_all, render_curves, markdown_curves, plot_curves, notes,
+                               compiler_options=sw.LIGHT_COMPILE))
 
 
 # ---------------------------------------------------------------------------

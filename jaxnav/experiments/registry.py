@@ -101,6 +101,8 @@ class Experiment:
         notes: printed under the result.
         batching: how a chunk of runs is evaluated, ``"vmap"`` or ``"map"``
             (:func:`jaxnav.experiments.sweep.sweep`).
+        compiler_options: XLA options of the full variant's compilation (``None``: XLA's
+            defaults), e.g. :data:`jaxnav.experiments.sweep.LIGHT_COMPILE`.
     """
 
     name: str
@@ -112,6 +114,7 @@ class Experiment:
     plot: Callable[[dict, str], None]
     notes: str = ""
     batching: str = "vmap"
+    compiler_options: dict | None = None
 
 
 EXPERIMENTS: dict[str, Experiment] = {}
@@ -154,7 +157,9 @@ def run(
 
     ``compiler_options`` are XLA options for the cells' compilation; by default the quick
     variant uses :data:`jaxnav.experiments.sweep.FAST_COMPILE` (its runs are short, its
-    compilations are not) and the full one XLA's defaults.
+    compilations are not) and the full one the experiment's own (``Experiment.compiler_options``:
+    :data:`jaxnav.experiments.sweep.LIGHT_COMPILE` for the HF-RFID SLAM tables and figures,
+    XLA's defaults for the others).
 
     The per-run results are checkpointed in ``out_dir/NAME.runs.json`` after every
     chunk: calling :func:`run` again with the same arguments resumes an interrupted
@@ -168,7 +173,7 @@ def run(
     raw = sw.sweep(
         [(c.id, c.run_fn(), c.args) for c in cells], runs, key, checkpoint, chunk_size, progress,
         meta={"experiment": name, "quick": quick},
-        compiler_options=(sw.FAST_COMPILE if quick else None) if compiler_options is None else compiler_options,
+        compiler_options=(sw.FAST_COMPILE if quick else exp.compiler_options) if compiler_options is None else compiler_options,
         batching=exp.batching, workers=workers, fresh=fresh,
     )
     result = exp.summarize(raw, cells, quick)

@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 
 from jaxnav.experiments import hf_slam as hf
+from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.registry import ERROR_COLUMNS, Cell, Experiment, register, summarize_column
 
 __all__ = ["TableRow", "table_experiment", "QUICK", "quick_setting", "setting_label", "FIVE_RECTANGLES"]
@@ -85,7 +86,8 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
-    return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes))
+    return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes,
+                               compiler_options=sw.LIGHT_COMPILE))
 
 
 def _fmt(col: str, v: float | None) -> str:

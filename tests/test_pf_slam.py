@@ -299,3 +299,87 @@ def test_params_are_checked_once_per_object_and_numpy_params_at_every_call():
     sd[0] = np.nan  # changed in place after a valid call
     with pytest.raises(ValueError):
         pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))
+
+
+def _slot_sequence():
+    """Six steps of 8 detection slots under 300 mm readers: a tag seen by two readers, valid slots
+    behind masked ones, an ID beyond the table, five valid slots in one step, an empty step."""
+    rows = [
+        [(1, 0), (1, 3), (2, 1)],
+        [None, (1, 0), (99, 2), (2, 1), None, (3, 2)],
+        [(1, 0), (2, 1), (3, 2), (4, 4), (5, 5)],
+        [],
+        [None, None, None, (5, 5), (4, 4), (1, 0), (1, 3)],
+        [(6, 6), (2, 1)],
+    ]
+    ids, readers, mask = np.zeros((6, 8), np.int32), np.zeros((6, 8), np.int32), np.zeros((6, 8), bool)
+    for t, row in enumerate(rows):
+        for k, entry in enumerate(row):
+            if entry is not None:
+                ids[t, k], readers[t, k], mask[t, k] = entry[0], entry[1], True
+    controls = jnp.tile(jnp.asarray([0.05, 0.02, 0.1, 0.1], jnp.float32), (6, 1))
+    return controls, hf_rfid.TagDetections(jnp.asarray(ids), jnp.asarray(readers), jnp.asarray(mask))
+
+
+def _slot_filter(module, lanes, side=0.3, motion_sd=(0.02, 0.02, 0.01)):
+    sensor = hf_rfid.reader_params(side, beta=0.05)
+    motion = OmniNoise(jnp.asarray(motion_sd, jnp.float32))
+    if module is pf_slam:
+        config = pf_slam.PFSLAMConfig(32, 24, 8, parallel_slots=lanes)
+        params = pf_slam.PFSLAMParams(motion, sensor)
+    else:
+        config = ps_slam.PSSLAMConfig(32, 24, 8, parallel_slots=lanes, lag=3)
+        params = ps_slam.PSSLAMParams(motion, sensor, ps_slam.default_jitter(sensor))
+    return config, params
+
+
+@pytest.mark.parametrize("module", [pf_slam, ps_slam], ids=["pf_slam", "ps_slam"])
+@pytest.mark.parametrize("lanes", [1, 2, 4])
+def test_parallel_slots_filter_like_all_slots(module, lanes):
+    """With ``parallel_slots`` a step processes the valid slots moved to the front, and all slots when
+    more are valid (step 2 has five, step 4 four): the same states and traces as ``parallel_slots=None``."""
+    controls, det = _slot_sequence()
+    outs = []
+    for slots in (None, lanes):
+        config, params = _slot_filter(module, slots)
+        state = module.init(jax.random.PRNGKey(0), config, params, jnp.asarray([0.5, 0.5, 0.0]))
+        outs.append(module.run(jax.random.PRNGKey(1), config, params, controls, det, state))
+    (want_state, want), (got_state, got) = outs
+    for a, b in zip(jax.tree_util.tree_leaves((got_state, got)), jax.tree_util.tree_leaves((want_state, want))):
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        else:
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(np.asarray(got.num_ignored), [0, 1, 0, 0, 0, 0])
+    np.testing.assert_array_equal(np.asarray(got.slot_ids[1]), [-1, 1, -1, 2, -1, 3, -1, -1])
+    assert int(got.num_new.sum()) == 6 and int(got_state.tags.counts[1]) == 4
+
+
+def test_parallel_slots_keep_the_derivatives_of_all_slots():
+    """Reverse and forward derivatives of the log-likelihood through ``run`` (w.r.t. the reader model's
+    log β and the motion noise) are those of ``parallel_slots=None``: the compacted step's overflow is a
+    loop that reverse mode cannot differentiate, so its derivatives come from the all-slot update."""
+    controls, det = _slot_sequence()
+
+    motion_sd = (0.3, 0.3, 0.2)  # 30 mm per step against 60 mm footprints: particles leave them
+
+    def loglik(module, lanes):
+        config, params = _slot_filter(module, lanes, side=0.06, motion_sd=motion_sd)
+
+        def f(log_beta, motion_sd):
+            p = params._replace(sensor=params.sensor._replace(log_beta=log_beta), motion=OmniNoise(motion_sd))
+            state = module.init(jax.random.PRNGKey(0), config, p, jnp.asarray([0.5, 0.5, 0.0]))
+            return jnp.sum(module.run(jax.random.PRNGKey(1), config, p, controls, det, state)[1].log_likelihood)
+
+        return f
+
+    args = (jnp.asarray(np.log(0.05), jnp.float32), jnp.asarray(motion_sd, jnp.float32))
+    for module in (pf_slam, ps_slam):
+        want = jax.grad(loglik(module, None), argnums=(0, 1))(*args)
+        got = jax.grad(loglik(module, 2), argnums=(0, 1))(*args)
+        assert np.all(np.isfinite(np.asarray(want[1]))) and abs(float(want[0])) > 0 and np.any(np.asarray(want[1]) != 0)
+        for a, b in zip(got, want):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        tangent = (jnp.ones_like(args[0]), jnp.zeros_like(args[1]))
+        _, jvp_got = jax.jvp(loglik(module, 2), args, tangent)
+        np.testing.assert_allclose(jvp_got, want[0], rtol=1e-4)

@@ -62,6 +62,7 @@ Choices where [W] is silent (stated here, tested):
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -133,6 +134,8 @@ def validate_common_config(config: Any) -> None:
         raise ValueError(f"recovery must be True or False, got {config.recovery!r}")
     if not np.isfinite(config.recovery_log_likelihood) or config.recovery_log_likelihood >= 0:
         raise ValueError(f"recovery_log_likelihood must be a negative number, got {config.recovery_log_likelihood!r}")
+    if config.parallel_slots is not None:
+        check_positive_int("parallel_slots", config.parallel_slots)
     sd = config.recovery_heading_sd
     if sd is not None and not (isinstance(sd, (int, float)) and np.isfinite(sd) and sd >= 0):
         raise ValueError(f"recovery_heading_sd must be None (uniform heading) or a number ≥ 0 rad, got {sd!r}")
@@ -261,8 +264,100 @@ class TagModel(NamedTuple):
     finish: Callable[..., Any]
 
 
+class StepResult(NamedTuple):
+    """A step's outcome before the tag table is written: the rows to scatter (``write_ids [K]``,
+    ``max_tags`` for slots that write nothing) and the robot's new particles."""
+
+    write_ids: jax.Array
+    rows: Any
+    poses: jax.Array
+    log_weights: jax.Array
+    info: SLAMInfo
+
+
 def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel):
-    """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``."""
+    """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
+
+    With ``config.parallel_slots = L`` smaller than the ``K`` detection slots, the valid slots
+    are moved to the front and only the first ``L`` are processed (:func:`_compacted_result`).
+    """
+    num_slots = det.ids.shape[0]
+    lanes = getattr(config, "parallel_slots", None)
+    robot = (state.poses, state.log_weights)
+    # gather: O(K·row); the loop below must not hold the table, or XLA copies it into the loop
+    rows = jax.tree_util.tree_map(lambda a: a[jnp.clip(det.ids, 0, config.max_tags - 1)], state.tags)
+    if lanes is None or lanes >= num_slots:
+        res = _slot_result(key, robot, rows, config, params, control, det, tag_model)
+    else:
+        res = _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes)
+    # the table is only written here, once: in place in a scan carry or a donated step
+    tags = jax.tree_util.tree_map(lambda a, v: a.at[res.write_ids].set(v, mode="drop"), state.tags, res.rows)
+    return state._replace(poses=res.poses, log_weights=res.log_weights, tags=tags), res.info
+
+
+def _compact(det: hf_rfid.TagDetections, max_tags: int, lanes: int):
+    """The valid slots moved to the front, in their order: ``(order [L], detections [L], num_valid)``
+    (the compacted slots past the valid ones are masked)."""
+    valid = det.mask & (det.ids >= 0) & (det.ids < max_tags)
+    order = jnp.argsort(~valid, stable=True)[:lanes].astype(jnp.int32)
+    small = hf_rfid.TagDetections(det.ids[order], det.readers[order], valid[order])
+    return order, small, jnp.sum(valid)
+
+
+def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) -> StepResult:
+    """A result on the ``L`` compacted slots put back on the ``K`` slots (the others write and report nothing)."""
+    def put(fill, v):
+        return jnp.full((num_slots,) + v.shape[1:], fill, v.dtype).at[order].set(v)
+
+    info = res.info._replace(
+        num_ignored=num_ignored,
+        slot_ids=put(-1, res.info.slot_ids),
+        slot_estimates=put(0, res.info.slot_estimates),
+        slot_counts=put(0, res.info.slot_counts),
+    )
+    rows = jax.tree_util.tree_map(lambda v: put(0, v), res.rows)
+    return res._replace(write_ids=put(max_tags, res.write_ids), rows=rows, info=info)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(3, 7, 8))
+def _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes):
+    """:func:`_slot_result` on the first ``lanes`` valid slots, and on all ``K`` slots only when a
+    step has more valid slots than that: the same result either way, at the cost of ``L`` slots.
+
+    The overflow is a ``while`` loop of zero or one iteration, so under ``vmap`` over runs the
+    ``K``-slot update is computed only at the steps where some run of the batch needs it (a
+    ``cond`` would compute both branches at every step). Derivatives are those of the ``K``-slot
+    update (a custom JVP: reverse mode cannot go through a loop whose trip count depends on data).
+    """
+    num_slots = det.ids.shape[0]
+    order, small, num_valid = _compact(det, config.max_tags, lanes)
+    num_ignored = jnp.sum(det.mask & ((det.ids < 0) | (det.ids >= config.max_tags))).astype(jnp.int32)
+    small_rows = jax.tree_util.tree_map(lambda a: a[order], rows)
+    res = _slot_result(key, robot, small_rows, config, params, control, small, tag_model)
+    res = _expand(res, order, num_slots, config.max_tags, num_ignored)
+
+    def all_slots(carry):
+        _, k, _ = carry
+        result = _slot_result(k, robot, rows, config, params, control, det, tag_model)
+        # The key is carried and changed so that the update is not loop-invariant: XLA hoists
+        # invariant code out of a loop, which would compute it at every step.
+        return jnp.zeros((), bool), jax.random.fold_in(k, 1), result
+
+    return jax.lax.while_loop(lambda carry: carry[0], all_slots, (num_valid > lanes, key, res))[2]
+
+
+@_compacted_result.defjvp
+def _compacted_result_jvp(config, tag_model, lanes, primals, tangents):
+    def all_slots(key, robot, rows, params, control, det):
+        return _slot_result(key, robot, rows, config, params, control, det, tag_model)
+
+    return jax.jvp(all_slots, primals, tangents)
+
+
+def _slot_result(key, robot, rows, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel) -> StepResult:
+    """The step on all ``K`` slots of ``det``, up to the table write (module docstring): ``robot`` is
+    ``(poses, log_weights)``, ``rows`` the slots' rows of the tag table."""
+    state_poses, state_log_weights = robot
     k_move, k_tags, k_recover, k_resample = jax.random.split(key, 4)
     model = get_motion_model(config.motion_model)
     sensor = params.sensor
@@ -270,12 +365,11 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
 
     # Materialise the moved particles: otherwise XLA:CPU fuses the motion draw (erf⁻¹, logs) into
     # the [K, I] likelihoods below and recomputes it for every slot (K times the draw).
-    poses = jax.lax.optimization_barrier(model.sample(k_move, state.poses, control, params.motion))
-    pose_est = weights.mean_from_probabilities(poses, jnp.exp(state.log_weights), _POSE_ANGLE_DIMS)
+    poses = jax.lax.optimization_barrier(model.sample(k_move, state_poses, control, params.motion))
+    pose_est = weights.mean_from_probabilities(poses, jnp.exp(state_log_weights), _POSE_ANGLE_DIMS)
 
     valid, ids, same, first, leader, num_ignored = _slots(det, max_tags)
     offsets = sensor.offsets[jnp.clip(det.readers, 0, sensor.offsets.shape[0] - 1)]
-    rows = jax.tree_util.tree_map(lambda a: a[ids], state.tags)  # gather: O(K·row)
     known = valid & (rows.counts > 0)
     is_new = valid & ~known
 
@@ -309,15 +403,14 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
     )(tag_keys, rows, particles, log_w, loglik, is_new)
     write = leader & ~lost
     write_ids = jnp.where(write, ids, max_tags)  # out of range: dropped by the scatter
-    tags = jax.tree_util.tree_map(lambda a, v: a.at[write_ids].set(v, mode="drop"), state.tags, new_rows)
 
     estimates = jnp.where(lost, rows.estimates, new_rows.estimates)
     if config.recovery:  # a cond: a step that is not lost draws nothing (under vmap both branches run)
         poses = jax.lax.cond(
             lost, lambda p: _recover(k_recover, p, rows.estimates, offsets, known, config, sensor), lambda p: p, poses
         )
-    uniform = jnp.full_like(state.log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
-    prior_lw = jnp.where(lost, uniform, state.log_weights)
+    uniform = jnp.full_like(state_log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
+    prior_lw = jnp.where(lost, uniform, state_log_weights)
     loglik = _robot_log_likelihood(poses, estimates, offsets, known, sensor)
     norm = weights.normalize(prior_lw + loglik)
     probs = jnp.exp(norm.log_weights)
@@ -342,7 +435,7 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
         slot_estimates=jnp.where(valid[:, None], estimates, 0.0),
         slot_counts=jnp.where(valid, counts_after, 0),
     )
-    return state._replace(poses=res.particles, log_weights=res.log_weights, tags=tags), info
+    return StepResult(write_ids, new_rows, res.particles, res.log_weights, info)
 
 
 def resampled_log_weights(row, res: resampling.ResampleResult, config) -> jax.Array:

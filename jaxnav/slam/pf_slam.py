@@ -84,6 +84,18 @@ class PFSLAMConfig:
         recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
         recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
             been turned); a number: each keeps its own heading with a uniform error of this standard deviation (rad).
+        parallel_slots: ``None`` (default): a step processes all ``K`` detection slots. A number
+            ``L < K``: a step moves the valid slots to the front and processes the first ``L``,
+            and all ``K`` only when more than ``L`` are valid, at the cost of ``L`` slots. The
+            results are those of all slots up to float rounding: sums over the slots run in
+            another order, and a particle filter can amplify a last-bit difference in a single
+            run (in distribution nothing changes). Derivatives are those of the all-slot step.
+            Worth it when the capacity ``K`` is much larger than what a step sees: at 100 tags/m²
+            with 60 mm readers ``K = 24`` for about 3 detections; Table 3.1's cell, R = 25
+            vmapped runs: 0.37 → 0.32 s per run with ``L = 8``; the online step (500 / 100
+            particles) 8–10 % faster. Under ``vmap`` a step where one run of the batch has more
+            than ``L`` valid slots costs all ``K`` for the batch: choose ``L`` above what a step
+            rarely exceeds (e.g. ``⌈λ + 3√λ⌉`` for ``λ`` expected detections per step).
     """
 
     num_particles: int = 500
@@ -96,6 +108,7 @@ class PFSLAMConfig:
     recovery: bool = True
     recovery_log_likelihood: float = -8.0
     recovery_heading_sd: float | None = None
+    parallel_slots: int | None = None
 
     def __post_init__(self) -> None:
         _tag_slam.validate_common_config(self)

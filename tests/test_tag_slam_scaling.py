@@ -20,11 +20,12 @@ SENSOR = hf_rfid.reader_params(0.06)
 IN_PLACE_PRIMITIVES = {"gather", "scatter"}
 
 
-def _setup(method: str, max_tags: int, lag: int = 20):
+def _setup(method: str, max_tags: int, lag: int = 20, parallel_slots=None):
     if method == "pf":
-        config = pf_slam.PFSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags)
+        config = pf_slam.PFSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags, parallel_slots=parallel_slots)
         return pf_slam, config, pf_slam.PFSLAMParams(MOTION, SENSOR)
-    config = ps_slam.PSSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags, lag=lag)
+    config = ps_slam.PSSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags, lag=lag,
+                                  parallel_slots=parallel_slots)
     return ps_slam, config, ps_slam.PSSLAMParams(MOTION, SENSOR, ps_slam.default_jitter(SENSOR))
 
 
@@ -53,9 +54,10 @@ def _table_sized_equations(jaxpr, size, found):
     return found
 
 
+@pytest.mark.parametrize("parallel_slots", [None, 3])
 @pytest.mark.parametrize("method", ["pf", "ps"])
-def test_step_jaxpr_touches_the_table_only_through_gather_and_scatter(method):
-    module, config, params = _setup(method, MAX_TAGS, lag=2)
+def test_step_jaxpr_touches_the_table_only_through_gather_and_scatter(method, parallel_slots):
+    module, config, params = _setup(method, MAX_TAGS, lag=2, parallel_slots=parallel_slots)
     state = jax.eval_shape(lambda: module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3)))
     closed = jax.make_jaxpr(module._step, static_argnums=(2,))(
         jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3])
@@ -69,11 +71,12 @@ def test_step_jaxpr_touches_the_table_only_through_gather_and_scatter(method):
     assert sum(name == "scatter" for name, _ in found) == fields
 
 
+@pytest.mark.parametrize("parallel_slots", [None, 3])
 @pytest.mark.parametrize("method", ["pf", "ps"])
-def test_compiled_step_updates_the_table_in_place(method):
+def test_compiled_step_updates_the_table_in_place(method, parallel_slots):
     """The donated step's optimised HLO aliases every table field to its output and copies none of
     them (a copy would cost O(max_tags) per step: the regression this guards against)."""
-    module, config, params = _setup(method, MAX_TAGS, lag=2)
+    module, config, params = _setup(method, MAX_TAGS, lag=2, parallel_slots=parallel_slots)
     state = jax.eval_shape(lambda: module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3)))
     hlo = module._step_jit.lower(
         jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3])

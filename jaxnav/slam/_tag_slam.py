@@ -322,7 +322,8 @@ def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) 
 @partial(jax.custom_jvp, nondiff_argnums=(3, 7, 8))
 def _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes):
     """:func:`_slot_result` on the first ``lanes`` valid slots, and on all ``K`` slots only when a
-    step has more valid slots than that: the same result either way, at the cost of ``L`` slots.
+    step has more valid slots than that: the same result either way up to float rounding (sums
+    over the slots run in another order), at the cost of ``L`` slots.
 
     The overflow is a ``while`` loop of zero or one iteration, so under ``vmap`` over runs the
     ``K``-slot update is computed only at the steps where some run of the batch needs it (a

@@ -587,8 +587,8 @@ class SlotUpdates(NamedTuple):
 def _write_rows(means, covs, upd: SlotUpdates, ancestors):
     """Scatter the updated rows into maps already copied from ``ancestors``: particle ``n``
     gets its ancestor's rows. One scatter per array over all ``K`` slots (a slot that writes
-    nothing has ``write[k] = M`` and is dropped): ``K`` scatters, one per slot, were ``4K``
-    small kernels per step and as many fusions to compile."""
+    nothing has ``write[k] = M`` and is dropped). Writing slot by slot took ``4K`` small kernels
+    per step, and as many fusions to compile."""
     rows_mu = jnp.swapaxes(jnp.take(upd.rows_mu, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D]
     rows_cov = jnp.swapaxes(jnp.take(upd.rows_cov, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D, D]
     means = means.at[:, upd.write].set(rows_mu, mode="drop")

@@ -207,15 +207,20 @@ def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd
 # the step
 
 
+def _valid_slots(det: hf_rfid.TagDetections, max_tags: int):
+    """``(valid [K], dropped count)``: masked slots with an ID in the table, and the masked ones without."""
+    in_table = (det.ids >= 0) & (det.ids < max_tags)
+    return det.mask & in_table, jnp.sum(det.mask & ~in_table).astype(jnp.int32)
+
+
 def _slots(det: hf_rfid.TagDetections, max_tags: int):
     """Valid slots, safe IDs, same-tag groups ``[K, K]``, each slot's group leader, and dropped count."""
-    in_table = (det.ids >= 0) & (det.ids < max_tags)
-    valid = det.mask & in_table
+    valid, num_ignored = _valid_slots(det, max_tags)
     ids = jnp.clip(det.ids, 0, max_tags - 1).astype(jnp.int32)
     same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
     first = jnp.argmax(same, axis=1).astype(jnp.int32)
     leader = valid & (first == jnp.arange(ids.shape[0]))
-    return valid, ids, same, first, leader, jnp.sum(det.mask & ~in_table).astype(jnp.int32)
+    return valid, ids, same, first, leader, num_ignored
 
 
 def _robot_log_likelihood(poses, tag_estimates, offsets, mask, sensor) -> jax.Array:
@@ -282,7 +287,7 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
     are moved to the front and only the first ``L`` are processed (:func:`_compacted_result`).
     """
     num_slots = det.ids.shape[0]
-    lanes = getattr(config, "parallel_slots", None)
+    lanes = config.parallel_slots
     robot = (state.poses, state.log_weights)
     # gather: O(K·row); the loop below must not hold the table, or XLA copies it into the loop
     rows = jax.tree_util.tree_map(lambda a: a[jnp.clip(det.ids, 0, config.max_tags - 1)], state.tags)
@@ -296,12 +301,12 @@ def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, t
 
 
 def _compact(det: hf_rfid.TagDetections, max_tags: int, lanes: int):
-    """The valid slots moved to the front, in their order: ``(order [L], detections [L], num_valid)``
-    (the compacted slots past the valid ones are masked)."""
-    valid = det.mask & (det.ids >= 0) & (det.ids < max_tags)
+    """The valid slots moved to the front, in their order: ``(order [L], detections [L], num_valid,
+    num_ignored)`` (the compacted slots past the valid ones are masked)."""
+    valid, num_ignored = _valid_slots(det, max_tags)
     order = jnp.argsort(~valid, stable=True)[:lanes].astype(jnp.int32)
     small = hf_rfid.TagDetections(det.ids[order], det.readers[order], valid[order])
-    return order, small, jnp.sum(valid)
+    return order, small, jnp.sum(valid), num_ignored
 
 
 def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) -> StepResult:
@@ -331,8 +336,7 @@ def _compacted_result(key, robot, rows, config, params, control, det, tag_model,
     update (a custom JVP: reverse mode cannot go through a loop whose trip count depends on data).
     """
     num_slots = det.ids.shape[0]
-    order, small, num_valid = _compact(det, config.max_tags, lanes)
-    num_ignored = jnp.sum(det.mask & ((det.ids < 0) | (det.ids >= config.max_tags))).astype(jnp.int32)
+    order, small, num_valid, num_ignored = _compact(det, config.max_tags, lanes)
     small_rows = jax.tree_util.tree_map(lambda a: a[order], rows)
     res = _slot_result(key, robot, small_rows, config, params, control, small, tag_model)
     res = _expand(res, order, num_slots, config.max_tags, num_ignored)

@@ -9,6 +9,7 @@ import pytest
 
 from jaxnav import metrics
 from jaxnav.core import fastmath
+from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.slam import fastslam as fs
@@ -230,8 +231,9 @@ def test_write_rows_gives_each_particle_its_ancestors_rows(getkey):
 
 def test_footprint_closed_form_equals_the_generic_ekf(getkey):
     """HF_FOOTPRINT's closed-form landmark update and initialisation give what the generic EKF
-    (Jacobians by autodiff, Cholesky factorisations) gives, in float64 to 1e-10; a model without
-    the hooks falls back to the generic path."""
+    (Jacobians by autodiff, Cholesky factorisations, the noise rotated with the heading) gives, in
+    float64 to 1e-10, for the footprint's isotropic noise (which the closed form relies on: it
+    skips the rotation); a model without the hooks falls back to the generic path."""
     from jaxnav.models import hf_rfid
 
     generic = fs.HF_FOOTPRINT._replace(update=None, initialise=None)
@@ -244,7 +246,7 @@ def test_footprint_closed_form_equals_the_generic_ekf(getkey):
         covs = a @ jnp.swapaxes(a, 1, 2) + 1e-5 * jnp.eye(2)
         zs = jax.random.normal(getkey(), (n, 2), jnp.float64) * 0.05
         r = hf_rfid.footprint_cov(hf_rfid.reader_params(0.06))
-        r = jnp.asarray(r, jnp.float64).at[0, 0].multiply(2.0)  # anisotropic, so that the rotation matters
+        r = jnp.asarray(r, jnp.float64)
         update = lambda om: jax.vmap(lambda p, m, c, z: fs._landmark_ekf(om, r, p, m, c, z))  # noqa: E731
         got, ref = update(fs.HF_FOOTPRINT)(poses, means, covs, zs), update(generic)(poses, means, covs, zs)
         for field in ("mean", "cov", "nis", "log_likelihood"):
@@ -406,3 +408,94 @@ def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey)
         fs.FastSLAMConfig(map_copy="in_place", resampling="multinomial")
     with pytest.raises(ValueError, match="map_copy"):
         fs.FastSLAMConfig(map_copy="copy")
+
+
+def _isotropic_footprint_model():
+    """HF_FOOTPRINT (closed-form update, pose-free covariances) with an isotropic noise ``sd² I``
+    given directly, so that it runs on the range-bearing world's robot-frame positions."""
+    return fs.HF_FOOTPRINT._replace(
+        name="isotropic_footprint", noise_cov=lambda sd: sd * sd * jnp.eye(2), validate=lambda sd: None
+    )
+
+
+def _robot_frame_sim(key, steps, sd):
+    u = lw.loop_controls(steps)
+    k_sim, k_noise = jax.random.split(key)
+    truth = lw.simulate(k_sim, LANDMARKS, X0, u, MOTION, SENSOR, max_range=6.0)
+    rel = jax.vmap(lambda x: jax.vmap(lambda m: hf_rfid.robot_frame(x, m))(LANDMARKS))(truth.true_poses)
+    return u, truth.observations._replace(z=rel + jax.random.normal(k_noise, rel.shape) * sd)
+
+
+@pytest.mark.parametrize("version, map_copy", [(1, "gather"), (1, "in_place"), (2, "gather")])
+def test_shared_covariances_filter_like_per_particle_ones(version, map_copy, getkey):
+    """With a pose-free covariance update, FastSLAM's one covariance per landmark ("shared", the
+    default for such models) gives the filter of per-particle covariances: every particle's
+    covariance equals the shared one, and poses, maps and estimates agree over 80 steps
+    with resampling at every step."""
+    om = _isotropic_footprint_model()
+    sd = jnp.asarray(0.05)
+    u, obs = _robot_frame_sim(getkey(), 80, sd)
+    params = fs.FastSLAMParams(MOTION, sd)
+    key, k0 = getkey(), getkey()
+    out = {}
+    for cov in ("per_particle", "shared"):
+        cfg = fs.FastSLAMConfig(num_particles=32, num_landmarks=8, version=version, observation_model=om,
+                                map_copy=map_copy, covariance=cov)
+        state = fs.init(k0, cfg, params, X0, jnp.asarray([0.02, 0.02, 0.01]))
+        out[cov] = fs.run(key, cfg, params, u, obs, state)
+    (pp, pp_trace), (sh, sh_trace) = out["per_particle"], out["shared"]
+    assert pp.covs.shape == (32, 8, 2, 2) and sh.covs.shape == (8, 2, 2)
+    assert bool(jnp.all(sh.seen)) and bool(jnp.any(sh_trace.resampled))
+    np.testing.assert_allclose(pp.covs, jnp.broadcast_to(sh.covs, pp.covs.shape), rtol=1e-5, atol=1e-10)
+    assert np.sum(np.asarray(sh.covs)[:, 0, 0] < 0.5 * 0.05**2) >= 4  # most landmarks updated past the initial R
+    for a, b in ((pp.poses, sh.poses), (pp.means, sh.means), (pp_trace.estimate, sh_trace.estimate)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(pp_trace.log_likelihood, sh_trace.log_likelihood, rtol=1e-4, atol=1e-3)
+
+
+def test_shared_covariance_gradient_matches_finite_differences(getkey):
+    """Reverse and forward-mode gradients of the summed log-likelihood through ``run`` with
+    shared covariances (and the in-place copy of the means alone) agree with central differences."""
+    from jax.test_util import check_grads
+
+    with jax.enable_x64(True):
+        u, obs = _robot_frame_sim(getkey(), 15, 0.05)
+        obs = obs._replace(z=jnp.asarray(obs.z, jnp.float64))
+        cfg = fs.FastSLAMConfig(num_particles=16, num_landmarks=8, observation_model=_isotropic_footprint_model(),
+                                map_copy="in_place")
+        assert cfg.shared_covariance
+        motion_noise = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), MOTION)
+        k_init, k_run = getkey(), getkey()
+
+        def loss(sd):
+            params = fs.FastSLAMParams(motion_noise, sd)
+            state = fs.init(k_init, cfg, params, jnp.asarray(X0, jnp.float64))
+            _, trace = fs._run_jit(k_run, cfg, params, jnp.asarray(u, jnp.float64), obs, state)
+            return jnp.sum(trace.log_likelihood)
+
+        sd = jnp.asarray(0.05, jnp.float64)
+        assert bool(jnp.isfinite(jax.grad(loss)(sd)))
+        check_grads(loss, (sd,), order=1, modes=["rev", "fwd"], eps=1e-6, rtol=1e-4, atol=1e-4)
+
+
+def test_covariance_choice_resolves_and_bad_choices_are_refused(getkey):
+    """"auto" shares the covariances for HF_FOOTPRINT only; "shared" is refused for a model whose
+    covariance update reads the pose; a state of the other layout is refused."""
+    assert fs.FastSLAMConfig(observation_model="hf_footprint").shared_covariance
+    assert not fs.FastSLAMConfig(observation_model="hf_footprint", covariance="per_particle").shared_covariance
+    assert not fs.FastSLAMConfig(observation_model="range_bearing").shared_covariance
+    cfg = fs.FastSLAMConfig(num_landmarks=10, observation_model="hf_footprint")
+    assert cfg.map_floats == 10 * 2
+    assert fs.FastSLAMConfig(num_landmarks=10, covariance="per_particle", observation_model="hf_footprint").map_floats == 60
+    with pytest.raises(ValueError, match="pose_free_covariance"):
+        fs.FastSLAMConfig(observation_model="range_bearing", covariance="shared")
+    with pytest.raises(ValueError, match="covariance"):
+        fs.FastSLAMConfig(covariance="diagonal")
+    om = _isotropic_footprint_model()
+    params = fs.FastSLAMParams(MOTION, jnp.asarray(0.05))
+    shared = fs.FastSLAMConfig(num_particles=8, num_landmarks=8, observation_model=om)
+    per_particle = fs.FastSLAMConfig(num_particles=8, num_landmarks=8, observation_model=om, covariance="per_particle")
+    state = fs.init(getkey(), per_particle, params, X0)
+    u, obs = _robot_frame_sim(getkey(), 3, 0.05)
+    with pytest.raises(ValueError, match="state.covs"):
+        fs.run(getkey(), shared, params, u, obs, state)

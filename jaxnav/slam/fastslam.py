@@ -113,7 +113,7 @@ Below it ``jnp.take`` is faster than the row-copy loop of
 :func:`jaxnav.core.resampling.copy_ancestors_in_place` (benchmark W3)."""
 
 
-UNROLL_MIN_FLOATS = 512
+UNROLL_MIN_FLOATS = 256
 """Map size per particle (floats) from which :func:`run` unrolls two steps per scan iteration
 when resampling gathers the maps (:func:`_run_unroll`)."""
 
@@ -135,6 +135,10 @@ class ObservationModel(NamedTuple):
             Jacobian of ``mean``), e.g. a closed form for a model linear in the landmark.
         initialise: optional ``(pose, z, R) -> (mean, cov)`` used instead of
             ``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ`` with ``J`` by automatic differentiation.
+        pose_free_covariance: the landmark covariance that ``update`` and ``initialise`` return
+            does not depend on the pose (``H_m`` constant and the noise, seen in the landmark's
+            frame, pose-free). Every particle then holds the same covariance of a landmark, and
+            FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``).
     """
 
     name: str
@@ -147,6 +151,7 @@ class ObservationModel(NamedTuple):
     validate: Callable[[Any], None]
     update: Callable[..., kalman.UpdateResult] | None = None
     initialise: Callable[..., tuple[jax.Array, jax.Array]] | None = None
+    pose_free_covariance: bool = False
 
 
 def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
@@ -156,24 +161,21 @@ def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
 RANGE_BEARING = ObservationModel(
     "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
 )
-def _rotated_noise(pose: jax.Array, r: jax.Array) -> jax.Array:
-    """``R(θ) R_z R(θ)ᵀ``: robot-frame noise ``R_z [2, 2]`` in the world frame."""
-    s, c = fastmath.sincos(pose[2])
-    rot = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
-    return fastmath.matmul(fastmath.matmul(rot, r), rot.T)
-
-
 def _footprint_update(pose, mean, cov, z, r) -> kalman.UpdateResult:
     """The HF footprint's landmark update in closed form (exactly the EKF's: ``h`` is linear in the landmark).
 
     ``h(x, m) = R(θ)ᵀ(m − p)``, so the detection is the world point ``m_z = p + R(θ) z`` with noise
-    ``N = R(θ) R_z R(θ)ᵀ`` and ``H = I``: ``S = Σ + N``, ``K = Σ S⁻¹``, ``μ' = μ + K (m_z − μ)``,
-    ``Σ' = (I − K) Σ (I − K)ᵀ + K N Kᵀ`` (Joseph form, as :func:`~jaxnav.core.kalman.ekf_update`),
-    weight ``log N(m_z − μ; 0, S)``, equal to the robot-frame ``log N(z; h(x, μ), H_m Σ H_mᵀ + R_z)``
-    because a rotation keeps the Mahalanobis distance and the determinant. 2 × 2 algebra written
-    out: under ``vmap`` the generic EKF's Jacobian and factorisations cost several times more.
+    ``N = R(θ) R_z R(θ)ᵀ`` and ``H = I``. The footprint's ``R_z = (σ²/3) I`` is isotropic
+    (:func:`jaxnav.models.hf_rfid.footprint_cov`), so ``N = R_z`` for every heading: the
+    covariance update below does not depend on the pose, and every particle keeps the same
+    landmark covariance (``pose_free_covariance``). ``S = Σ + N``, ``K = Σ S⁻¹``,
+    ``μ' = μ + K (m_z − μ)``, ``Σ' = (I − K) Σ (I − K)ᵀ + K N Kᵀ`` (Joseph form, as
+    :func:`~jaxnav.core.kalman.ekf_update`), weight ``log N(m_z − μ; 0, S)``, equal to the
+    robot-frame ``log N(z; h(x, μ), H_m Σ H_mᵀ + R_z)`` because a rotation keeps the Mahalanobis
+    distance and the determinant. 2 × 2 algebra written out: under ``vmap`` the generic EKF's
+    Jacobian and factorisations cost several times more.
     """
-    noise = _rotated_noise(pose, r)
+    noise = r
     cov = kalman.symmetrize(cov)
     s = cov + noise
     det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
@@ -188,19 +190,21 @@ def _footprint_update(pose, mean, cov, z, r) -> kalman.UpdateResult:
 
 
 def _footprint_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
-    """``μ = p + R(θ) z``, ``Σ = R(θ) R_z R(θ)ᵀ`` (the generic ``J R Jᵀ`` with ``J = R(θ)``)."""
-    return hf_rfid.world_frame(pose, z), kalman.ensure_pd(_rotated_noise(pose, r))
+    """``μ = p + R(θ) z``, ``Σ = R(θ) R_z R(θ)ᵀ = R_z`` (the generic ``J R Jᵀ`` with ``J = R(θ)``;
+    ``R_z`` is isotropic, :func:`_footprint_update`)."""
+    return hf_rfid.world_frame(pose, z), kalman.ensure_pd(r)
 
 
 HF_FOOTPRINT = ObservationModel(
     "hf_footprint", 2, 2, hf_rfid.robot_frame, hf_rfid.world_frame, hf_rfid.footprint_cov, (), hf_rfid.validate_params,
-    _footprint_update, _footprint_initialise,
+    _footprint_update, _footprint_initialise, pose_free_covariance=True,
 )
 """The HF-RFID detection as a Gaussian measurement (SPEC §3, [W] §3.2): ``z`` = the detecting reader's
 position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
 Sensor params: :class:`jaxnav.models.hf_rfid.HFReaderParams`; observations:
 :func:`jaxnav.models.hf_rfid.landmark_observations` of the detections. Its landmark update and
-initialisation are in closed form (:func:`_footprint_update`)."""
+initialisation are in closed form (:func:`_footprint_update`); its landmark covariances do not depend on
+the pose, so FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``)."""
 
 OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
 
@@ -231,6 +235,13 @@ class FastSLAMConfig:
             observes is fastest under ``vmap`` (Table 3.1 at 100 tags/m², 2–3 per step: 3
             lanes 0.78 s per run, 2 lanes 0.87 s; at 16 tags/m², 0–1 per step: 1 lane 0.27 s,
             2 lanes 0.37 s).
+        covariance: where the landmark covariances live: "per_particle" (``[N, M, D, D]``, each
+            particle its own, as in Montemerlo et al.), "shared" (``[M, D, D]``, one per landmark,
+            for observation models whose covariance update does not depend on the pose,
+            ``ObservationModel.pose_free_covariance``: the particles' covariances are then equal,
+            and neither updated ``N`` times nor copied at resampling) or "auto" (shared when the
+            model allows it). The filter is the same either way; shared covariances cut the map
+            that resampling copies from ``D + D²`` to ``D`` floats per landmark.
     """
 
     num_particles: int = 100
@@ -242,6 +253,7 @@ class FastSLAMConfig:
     ess_threshold: float = 1.0
     map_copy: str = "auto"
     parallel_slots: int = DEFAULT_PARALLEL_SLOTS
+    covariance: str = "auto"
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
@@ -254,6 +266,12 @@ class FastSLAMConfig:
         check_fraction("ess_threshold", self.ess_threshold)
         check_choice("map_copy", self.map_copy, ("auto", "gather", "in_place"))
         check_positive_int("parallel_slots", self.parallel_slots)
+        check_choice("covariance", self.covariance, ("auto", "per_particle", "shared"))
+        if self.covariance == "shared" and not self.obs_model.pose_free_covariance:
+            raise ValueError(
+                f"covariance='shared' needs an observation model whose landmark covariance does not depend "
+                f"on the pose (pose_free_covariance=True); {self.obs_model.name!r} is not one"
+            )
         if self.map_copy == "in_place" and self.resampling not in resampling.SORTED_SCHEMES:
             raise ValueError(
                 f"map_copy='in_place' needs sorted ancestors ({', '.join(resampling.SORTED_SCHEMES)}), "
@@ -265,6 +283,17 @@ class FastSLAMConfig:
         """The resolved :class:`ObservationModel`."""
         om = self.observation_model
         return om if isinstance(om, ObservationModel) else OBSERVATION_MODELS[om]
+
+    @property
+    def shared_covariance(self) -> bool:
+        """Whether the state holds one covariance per landmark (``covs [M, D, D]``)."""
+        return self.covariance == "shared" or (self.covariance == "auto" and self.obs_model.pose_free_covariance)
+
+    @property
+    def map_floats(self) -> int:
+        """Floats per particle that resampling copies: ``M · D``, plus ``M · D²`` per-particle covariances."""
+        d = self.obs_model.landmark_dim
+        return self.num_landmarks * (d if self.shared_covariance else d + d * d)
 
 
 class FastSLAMParams(NamedTuple):
@@ -286,7 +315,8 @@ class FastSLAMState(NamedTuple):
         poses: ``[N, 3]`` (m, m, rad).
         log_weights: ``[N]`` normalised.
         means: ``[N, M, D]`` landmark means per particle (m).
-        covs: ``[N, M, D, D]`` landmark covariances per particle (m²).
+        covs: ``[N, M, D, D]`` landmark covariances per particle (m²), or ``[M, D, D]`` shared by
+            the particles (``config.shared_covariance``).
         seen: ``[M]`` bool, the landmark has been initialised (shared by all
             particles: with known association they all see it at the same step).
     """
@@ -336,7 +366,7 @@ def _validate_state(config: FastSLAMConfig, state: FastSLAMState) -> None:
     check_shape("state.poses", state.poses, (n, 3))
     check_shape("state.log_weights", state.log_weights, (n,))
     check_shape("state.means", state.means, (n, m, d))
-    check_shape("state.covs", state.covs, (n, m, d, d))
+    check_shape("state.covs", state.covs, ((m,) if config.shared_covariance else (n, m)) + (d, d))
     check_shape("state.seen", state.seen, (m,))
 
 
@@ -397,9 +427,10 @@ def init(
     check_nonnegative("initial_sd", sd)
     poses = pose + jax.random.normal(key, (n, 3), pose.dtype) * sd
     poses = poses.at[:, 2].set(weights.wrap_angle(poses[:, 2]))
+    cov_shape = ((m,) if config.shared_covariance else (n, m)) + (d, d)
     if landmark_means is None:
         means = jnp.zeros((n, m, d), pose.dtype)
-        covs = jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (n, m, d, d))
+        covs = jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), cov_shape)
         seen = jnp.zeros((m,), bool)
     else:
         lm_means = jnp.asarray(landmark_means, pose.dtype)
@@ -408,7 +439,7 @@ def init(
         lm_covs = 1e-2 * jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (m, d, d)) if landmark_covs is None else jnp.asarray(landmark_covs, pose.dtype)
         check_shape("landmark_covs", lm_covs, (m, d, d))
         means = jnp.broadcast_to(lm_means, (n, m, d))
-        covs = jnp.broadcast_to(lm_covs, (n, m, d, d))
+        covs = jnp.broadcast_to(lm_covs, cov_shape)
         seen = jnp.ones((m,), bool)
     log_w = jnp.full((n,), -np.log(n), pose.dtype)
     # materialise the broadcasts: the state is updated in place from here on
@@ -441,6 +472,33 @@ def _landmark_init(om: ObservationModel, r: jax.Array, pose, z) -> tuple[jax.Arr
     return om.inverse(pose, z), kalman.ensure_pd(fastmath.matmul(fastmath.matmul(jac, r), jac.T))
 
 
+def _is_shared(means, covs) -> bool:
+    """Whether ``covs`` is one per landmark (``[M, D, D]`` beside ``means [N, M, D]``), shared by the particles."""
+    return covs.ndim == means.ndim
+
+
+def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kalman.UpdateResult:
+    """:func:`_landmark_ekf` of one landmark in every particle: ``mu [N, D]``, ``cov [N, D, D]`` or,
+    shared by the particles, ``[D, D]``; a shared covariance comes out shared (vmap raises an error if
+    the model's covariance update reads the pose)."""
+    axis = None if cov.ndim == mu.ndim else 0
+    ekf = jax.vmap(
+        lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
+        in_axes=(0, 0, axis), out_axes=kalman.UpdateResult(0, axis, 0, 0, 0, 0),
+    )
+    return ekf(poses, mu, cov)
+
+
+def _particles_init(om: ObservationModel, r: jax.Array, poses, z, shared: bool) -> tuple[jax.Array, jax.Array]:
+    """:func:`_landmark_init` in every particle: ``(mean [N, D], cov [N, D, D] or, shared, [D, D])``."""
+    return jax.vmap(lambda p: _landmark_init(om, r, p, z), out_axes=(0, None if shared else 0))(poses)
+
+
+def _landmark_rows(covs, j, shared: bool):
+    """Landmark ``j``'s covariance in every particle: ``covs[:, j]``, or the shared ``covs[j]``."""
+    return covs[j] if shared else covs[:, j]
+
+
 def _slot_order(valid, ids):
     """``(previous, last)``: for each slot the earlier slot of this step that last observed its
     landmark (−1: none), and the landmark's last slot."""
@@ -462,18 +520,19 @@ def _apply_slot(om, r, poses, means, covs, seen, obs, ids, previous, k, carry):
     loglik [N], num_new)``: its landmark is read from the maps, or from the buffer of the earlier
     slot of this step that updated it (``previous[k]``), initialised if new, else EKF-updated."""
     buf_mu, buf_cov, loglik, num_new = carry
+    shared = _is_shared(means, covs)
     j, z, prev = ids[k], obs.z[k], previous[k]
     from_buf = prev >= 0
     mu_k = jnp.where(from_buf, buf_mu[jnp.maximum(prev, 0)], means[:, j])
-    cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], covs[:, j])
+    cov_k = jnp.where(from_buf, buf_cov[jnp.maximum(prev, 0)], _landmark_rows(covs, j, shared))
     new = ~seen[j] & ~from_buf
 
     def update():
-        u = jax.vmap(lambda p, mu, c: _landmark_ekf(om, r, p, mu, c, z))(poses, mu_k, cov_k)
+        u = _particles_ekf(om, r, poses, mu_k, cov_k, z)
         return u.mean, u.cov, u.log_likelihood
 
     def init():
-        mu, cov = jax.vmap(lambda p: _landmark_init(om, r, p, z))(poses)
+        mu, cov = _particles_init(om, r, poses, z, shared)
         return mu, cov, jnp.zeros_like(loglik)
 
     # seen is shared by the particles, so one branch serves them all
@@ -483,9 +542,10 @@ def _apply_slot(om, r, poses, means, covs, seen, obs, ids, previous, k, carry):
 
 def _empty_slot_buffers(num_slots, means, covs, poses):
     n, d = means.shape[0], means.shape[2]
+    per_slot_cov = (d, d) if _is_shared(means, covs) else (n, d, d)
     return (
         jnp.zeros((num_slots, n, d), means.dtype),
-        jnp.zeros((num_slots, n, d, d), covs.dtype),
+        jnp.zeros((num_slots,) + per_slot_cov, covs.dtype),
         jnp.zeros(n, poses.dtype),
         jnp.zeros((), jnp.int32),
     )
@@ -533,6 +593,7 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     :func:`_update_landmarks_in_order` (a custom JVP).
     """
     num_slots = ids.shape[0]
+    shared = _is_shared(means, covs)
     previous, last = _slot_order(valid, ids)
     first = valid & (previous < 0)
 
@@ -542,13 +603,14 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     lane_new = ~seen[lane_ids]
     z = jnp.where(lane_ok[:, None], obs.z[lane], 0.0)  # masked slots' z are never read
     mu0 = jnp.swapaxes(jnp.take(means, lane_ids, axis=1, mode="clip"), 0, 1)  # [L, N, D]
-    cov0 = jnp.swapaxes(jnp.take(covs, lane_ids, axis=1, mode="clip"), 0, 1)
-    particles_ekf = jax.vmap(lambda zz, mu, c: jax.vmap(lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, zz))(poses, mu, c))
-    upd = particles_ekf(z, mu0, cov0)
-    ini_mu, ini_cov = jax.vmap(lambda zz: jax.vmap(lambda p: _landmark_init(om, r, p, zz))(poses))(z)
-    is_new = lane_new[:, None, None]
-    lane_mu = jnp.where(is_new, ini_mu, upd.mean)
-    lane_cov = jnp.where(is_new[..., None], ini_cov, upd.cov)
+    if shared:
+        cov0 = jnp.take(covs, lane_ids, axis=0, mode="clip")  # [L, D, D]
+    else:
+        cov0 = jnp.swapaxes(jnp.take(covs, lane_ids, axis=1, mode="clip"), 0, 1)  # [L, N, D, D]
+    upd = jax.vmap(lambda zz, mu, c: _particles_ekf(om, r, poses, mu, c, zz))(z, mu0, cov0)
+    ini_mu, ini_cov = jax.vmap(lambda zz: _particles_init(om, r, poses, zz, shared))(z)
+    lane_mu = jnp.where(lane_new[:, None, None], ini_mu, upd.mean)
+    lane_cov = jnp.where(jnp.expand_dims(lane_new, tuple(range(1, ini_cov.ndim))), ini_cov, upd.cov)
     loglik = jnp.sum(jnp.where((lane_ok & ~lane_new)[:, None], upd.log_likelihood, 0.0), axis=0)
     num_new = jnp.sum(lane_ok & lane_new).astype(jnp.int32)
     to = jnp.where(lane_ok, lane, num_slots)
@@ -577,7 +639,8 @@ def _update_landmarks_jvp(om, lanes, primals, tangents):
 
 class SlotUpdates(NamedTuple):
     """The landmarks a step updated: ``rows_*[k]`` of every particle go to landmark ``write[k]``
-    (``write[k] = M``, out of range, for slots that write nothing)."""
+    (``write[k] = M``, out of range, for slots that write nothing). ``rows_mu [K, N, D]``;
+    ``rows_cov [K, N, D, D]``, or ``[K, D, D]`` for shared covariances."""
 
     write: jax.Array
     rows_mu: jax.Array
@@ -588,12 +651,13 @@ def _write_rows(means, covs, upd: SlotUpdates, ancestors):
     """Scatter the updated rows into maps already copied from ``ancestors``: particle ``n``
     gets its ancestor's rows. One scatter per array over all ``K`` slots (a slot that writes
     nothing has ``write[k] = M`` and is dropped). Writing slot by slot took ``4K`` small kernels
-    per step, and as many fusions to compile."""
+    per step, and as many fusions to compile. Shared covariances are written once per landmark."""
     rows_mu = jnp.swapaxes(jnp.take(upd.rows_mu, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D]
-    rows_cov = jnp.swapaxes(jnp.take(upd.rows_cov, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D, D]
     means = means.at[:, upd.write].set(rows_mu, mode="drop")
-    covs = covs.at[:, upd.write].set(rows_cov, mode="drop")
-    return means, covs
+    if _is_shared(means, covs):
+        return means, covs.at[upd.write].set(upd.rows_cov, mode="drop")
+    rows_cov = jnp.swapaxes(jnp.take(upd.rows_cov, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D, D]
+    return means, covs.at[:, upd.write].set(rows_cov, mode="drop")
 
 
 def _proposal(om, r, prior_mean, prior_cov, means, covs, seen, obs, valid, ids):
@@ -643,7 +707,8 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
             return _sample_gaussian(k, g.mean, g.cov), ll
 
         keys = jax.random.split(k_move, config.num_particles)
-        poses, proposal_ll = jax.vmap(propose)(keys, state.poses, state.means, state.covs)
+        cov_axis = None if config.shared_covariance else 0
+        poses, proposal_ll = jax.vmap(propose, in_axes=(0, 0, 0, cov_axis))(keys, state.poses, state.means, state.covs)
 
     updates, seen, update_ll, num_new = _update_landmarks(
         om, r, poses, state.means, state.covs, state.seen, obs, valid, ids, config.parallel_slots
@@ -663,31 +728,34 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
     )
     # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
     # one pass over the maps, and the old maps are never copied just to be updated
-    means, covs = _copy_maps(state.means, state.covs, res.ancestors, config.resampling, config.map_copy)
+    means, covs = _copy_maps(state.means, state.covs, res.ancestors, config)
     means, covs = _write_rows(means, covs, updates, res.ancestors)
     poses = res.particles
     info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
 
 
-def _copies_in_place(num_landmarks: int, landmark_dim: int, scheme: str, mode: str) -> bool:
+def _copies_in_place(config: FastSLAMConfig) -> bool:
     """Whether :func:`_copy_maps` copies in place (else it gathers into new buffers)."""
-    row = num_landmarks * (landmark_dim + landmark_dim**2)
-    large = scheme in resampling.SORTED_SCHEMES and row >= IN_PLACE_MIN_FLOATS
-    return mode == "in_place" or (mode == "auto" and large)
+    large = config.resampling in resampling.SORTED_SCHEMES and config.map_floats >= IN_PLACE_MIN_FLOATS
+    return config.map_copy == "in_place" or (config.map_copy == "auto" and large)
 
 
-def _copy_maps(means, covs, ancestors, scheme: str, mode: str = "auto"):
+def _copy_maps(means, covs, ancestors, config: FastSLAMConfig):
     """Every particle takes its ancestor's map: the O(N·M) copy of [A] Alg. 5's resampling.
 
     Large maps with sorted ancestors are copied in place
-    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`) unless ``mode`` is "gather";
-    ``ancestors = arange`` (no resampling) copies nothing in place.
+    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`) unless ``config.map_copy`` is
+    "gather"; ``ancestors = arange`` (no resampling) copies nothing in place. Shared covariances
+    are not copied.
     """
-    if _copies_in_place(means.shape[1], means.shape[2], scheme, mode):
-        return resampling.copy_ancestors_in_place((means, covs), ancestors)
-    # ancestors are in range: "clip" gathers without the out-of-range select of the default "fill"
-    return jnp.take(means, ancestors, axis=0, mode="clip"), jnp.take(covs, ancestors, axis=0, mode="clip")
+    maps = (means,) if config.shared_covariance else (means, covs)
+    if _copies_in_place(config):
+        copied = resampling.copy_ancestors_in_place(maps, ancestors)
+    else:
+        # ancestors are in range: "clip" gathers without the out-of-range select of the default "fill"
+        copied = tuple(jnp.take(a, ancestors, axis=0, mode="clip") for a in maps)
+    return copied if len(copied) == 2 else (copied[0], covs)
 
 
 _step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))
@@ -717,13 +785,12 @@ def _run_unroll(config: FastSLAMConfig) -> int:
 
     A gathered map is a new buffer that the scan would copy back into its carry at every step;
     with two steps per iteration the second gather writes straight into the carry. Measured
-    under ``vmap`` (R = 10, Table 3.1): 1,260 floats per particle (100 tags/m²) 0.98 → 0.60 s per
-    run, for 6.2 → 8.2 s of compilation; 168 floats (16 tags/m²) 0.24 s either way, for
-    5.9 → 7.6 s of compilation.
+    under ``vmap`` (R = 25, Table 3.1, shared covariances): 420 floats per particle (100 tags/m²)
+    0.37 → 0.27 s per run, for 9.0 → 10.5 s of compilation; 56 floats (16 tags/m²) 0.11 → 0.15 s
+    per run. (Per-particle covariances, R = 10: 1,260 floats 0.98 → 0.60 s; 168 floats 0.24 s
+    either way.)
     """
-    d = config.obs_model.landmark_dim
-    gathers = not _copies_in_place(config.num_landmarks, d, config.resampling, config.map_copy)
-    return 2 if gathers and config.num_landmarks * (d + d * d) >= UNROLL_MIN_FLOATS else 1
+    return 2 if not _copies_in_place(config) and config.map_floats >= UNROLL_MIN_FLOATS else 1
 
 
 def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState):

@@ -499,3 +499,9 @@ def test_covariance_choice_resolves_and_bad_choices_are_refused(getkey):
     u, obs = _robot_frame_sim(getkey(), 3, 0.05)
     with pytest.raises(ValueError, match="state.covs"):
         fs.run(getkey(), shared, params, u, obs, state)
+    # a model that claims pose-free covariances but rotates its noise with the heading
+    liar = _robot_frame_model()._replace(name="liar", pose_free_covariance=True)
+    cfg = fs.FastSLAMConfig(num_particles=8, num_landmarks=8, observation_model=liar)
+    liar_params = fs.FastSLAMParams(MOTION, jnp.asarray([0.05, 0.02]))
+    with pytest.raises(ValueError, match="declares pose_free_covariance"):
+        fs.run(getkey(), cfg, liar_params, u, obs, fs.init(getkey(), cfg, liar_params, X0))

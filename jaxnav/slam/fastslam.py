@@ -477,13 +477,31 @@ def _is_shared(means, covs) -> bool:
     return covs.ndim == means.ndim
 
 
+def _shared_vmap(om: ObservationModel, fn, in_axes, out_axes):
+    """``jax.vmap`` over particles whose shared outputs (``out_axes`` None) must not depend on the
+    pose; if they do, the model's ``pose_free_covariance`` is wrong, and the error says so."""
+    mapped = jax.vmap(fn, in_axes=in_axes, out_axes=out_axes)
+
+    def call(*args):
+        try:
+            return mapped(*args)
+        except ValueError as e:
+            if "out_axes" not in str(e):
+                raise
+            raise ValueError(
+                f"observation model {om.name!r} declares pose_free_covariance=True, but its landmark "
+                f"covariance depends on the pose; use covariance='per_particle' or fix the model"
+            ) from e
+
+    return call
+
+
 def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kalman.UpdateResult:
     """:func:`_landmark_ekf` of one landmark in every particle: ``mu [N, D]``, ``cov [N, D, D]`` or,
-    shared by the particles, ``[D, D]``; a shared covariance comes out shared (vmap raises an error if
-    the model's covariance update reads the pose)."""
+    shared by the particles, ``[D, D]``; a shared covariance comes out shared."""
     axis = None if cov.ndim == mu.ndim else 0
-    ekf = jax.vmap(
-        lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
+    ekf = _shared_vmap(
+        om, lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
         in_axes=(0, 0, axis), out_axes=kalman.UpdateResult(0, axis, 0, 0, 0, 0),
     )
     return ekf(poses, mu, cov)
@@ -491,7 +509,8 @@ def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kal
 
 def _particles_init(om: ObservationModel, r: jax.Array, poses, z, shared: bool) -> tuple[jax.Array, jax.Array]:
     """:func:`_landmark_init` in every particle: ``(mean [N, D], cov [N, D, D] or, shared, [D, D])``."""
-    return jax.vmap(lambda p: _landmark_init(om, r, p, z), out_axes=(0, None if shared else 0))(poses)
+    init = _shared_vmap(om, lambda p: _landmark_init(om, r, p, z), in_axes=0, out_axes=(0, None if shared else 0))
+    return init(poses)
 
 
 def _landmark_rows(covs, j, shared: bool):

@@ -131,9 +131,11 @@ def test_s2_prefilled_table(method):
 def test_s2_rows_smallest_size_and_ratio():
     size = {"robot_particles": 500, "tags": 10}
     s2._MEDIANS.clear()
-    rows = s2.run_rows(_ctx(), size, methods=("pf_slam",), modes=("per_call",), steps=20)
-    _check_rows(rows, "S2", ("robot_particles", "tags"), ("per_call",), ("pf_slam",))
-    assert rows[0]["ratio_to_10_tags"] == 1.0 and rows[0]["detections_per_step"] == 4
+    rows = s2.run_rows(_ctx(), size, methods=("pf_slam",), modes=("per_call", "in_scan"), steps=20)
+    _check_rows(rows, "S2", ("robot_particles", "tags"), ("per_call", "in_scan"), ("pf_slam",))
+    assert all(r["ratio_to_10_tags"] == 1.0 and r["detections_per_step"] == 4 for r in rows)
+    scan = next(r for r in rows if r["mode"] == "in_scan")
+    assert "donate_state=True" in scan["note"] and scan["steps"] == 20 and scan["state_bytes"] > 0
     fake = [dict(workload="S2", method="pf_slam", mode="per_call", size={"tags": n}, median_s=v)
             for n, v in ((10, 2e-3), (1000, 2.2e-3), (100_000, 2.4e-3))]
     notes = s2.ratio_notes(fake)

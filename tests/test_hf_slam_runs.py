@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from jaxnav.experiments import hf_slam as xp
+from jaxnav.models import hf_rfid
 from jaxnav.sim import tag_carpet as tc
 from jaxnav.slam import pf_slam
 
@@ -118,3 +119,35 @@ def test_cli_hf_slam_writes_a_plot(tmp_path):
     assert "dr [mm]" in proc.stdout and (tmp_path / "run.png").stat().st_size > 10_000
     bad = subprocess.run([sys.executable, "-m", "jaxnav.cli", "hf-slam", "--reader-mm", "0"], capture_output=True, text=True)
     assert bad.returncode == 2 and "--reader-mm" in bad.stderr
+
+
+@pytest.mark.parametrize("method", ["pf_slam", "ps_slam", "fastslam"])
+def test_run_with_a_donated_state_equals_run(method):
+    """``run(..., donate_state=True)`` reuses the initial state's buffers (they are deleted after
+    the call) and filters exactly as ``run`` without donation."""
+    from jaxnav.slam import fastslam, pf_slam, ps_slam
+
+    setting = xp.HFSetting(**SMALL, rectangle=(0.5, 0.5, 1.0, 1.0), laps=1)
+    world = xp.make_world(jax.random.PRNGKey(3), setting)
+    sensor, motion, tags = setting.sensor(), setting.motion(), int(setting.layout.num_tags)
+    obs = world.run.detections
+    if method == "pf_slam":
+        module, config, params = pf_slam, pf_slam.PFSLAMConfig(50, 20, tags), pf_slam.PFSLAMParams(motion, sensor)
+    elif method == "ps_slam":
+        config = ps_slam.PSSLAMConfig(50, 20, tags, lag=5)
+        module, params = ps_slam, ps_slam.PSSLAMParams(motion, sensor, ps_slam.default_jitter(sensor))
+    else:
+        config = fastslam.FastSLAMConfig(num_particles=50, num_landmarks=tags, motion_model="omni",
+                                         observation_model="hf_footprint")
+        module, params = fastslam, fastslam.FastSLAMParams(motion, sensor)
+        obs = hf_rfid.landmark_observations(obs, sensor)
+    init = lambda: module.init(jax.random.PRNGKey(4), config, params, world.run.start_pose)  # noqa: E731
+    key = jax.random.PRNGKey(5)
+    kept = init()
+    plain = module.run(key, config, params, world.run.odometry, obs, kept)
+    donated_state = init()
+    donated = module.run(key, config, params, world.run.odometry, obs, donated_state, donate_state=True)
+    assert all(leaf.is_deleted() for leaf in jax.tree_util.tree_leaves(donated_state))
+    assert not any(leaf.is_deleted() for leaf in jax.tree_util.tree_leaves(kept))
+    for a, b in zip(jax.tree_util.tree_leaves(plain), jax.tree_util.tree_leaves(donated)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -191,17 +191,39 @@ def time_per_call(module, config, params, state, inputs, *, steps: int, budget_s
 
 
 def time_in_scan(module, config, params, state, controls, observations, *, repeats: int, budget_s: float,
-                 warmup: int = 1, min_repeats: int = 2) -> Timing:
-    """Wall time of one ``module.run`` over the trajectory (``state`` is not donated by ``run``)."""
+                 warmup: int = 1, min_repeats: int = 2, make_state: Callable[[], Any] | None = None) -> Timing:
+    """Wall time of one ``module.run`` over the trajectory.
+
+    Without ``make_state`` every call filters ``state`` (not donated: ``run`` copies it into its
+    scan). With it, every call gets a fresh state from ``make_state()``, made before the timer
+    starts, and donates it (``run(..., donate_state=True)``).
+    """
     key = jax.random.key(RUN_KEY)
-    call = lambda: jax.block_until_ready(module.run(key, config, params, controls, observations, state))  # noqa: E731
-    return time_calls(call, repeats=repeats, warmup=warmup, budget_s=budget_s, min_repeats=min_repeats)
+    if make_state is None:
+        call = lambda: jax.block_until_ready(module.run(key, config, params, controls, observations, state))  # noqa: E731
+        return time_calls(call, repeats=repeats, warmup=warmup, budget_s=budget_s, min_repeats=min_repeats)
+    samples: list[float] = []
+    with _GcOff():
+        for i in range(warmup + repeats):
+            fresh = jax.block_until_ready(make_state())
+            t0 = time.perf_counter()
+            jax.block_until_ready(module.run(key, config, params, controls, observations, fresh, donate_state=True))
+            dt = time.perf_counter() - t0
+            if i >= warmup:
+                samples.append(dt)
+                if len(samples) >= min_repeats and sum(samples) >= budget_s:
+                    break
+    return Timing.from_samples(samples)
 
 
 def measure(ctx: Context, workload: str, size: dict, method: str, mode: str, *, module, config, params,
             make_state: Callable[[], Any], controls, observations, compile_key: tuple, per_call_steps: int,
-            per_call_budget_s: float, scan_repeats: int, scan_budget_s: float, **extra: Any) -> dict:
-    """One row: ``method`` in ``mode`` on the given trajectory (``controls [T, 4]``, ``observations`` [T, K])."""
+            per_call_budget_s: float, scan_repeats: int, scan_budget_s: float, donate_scan: bool = False,
+            **extra: Any) -> dict:
+    """One row: ``method`` in ``mode`` on the given trajectory (``controls [T, 4]``, ``observations`` [T, K]).
+
+    ``donate_scan``: ``in_scan`` calls ``run(..., donate_state=True)`` on a fresh state per call
+    (:func:`time_in_scan`)."""
     t_len = int(controls.shape[0])
     state = make_state()
     if mode == "per_call":
@@ -218,15 +240,19 @@ def measure(ctx: Context, workload: str, size: dict, method: str, mode: str, *, 
                              "donated jitted step, state carried forward), block_until_ready each step",
                         **extra)
     key = jax.random.key(RUN_KEY)
-    compile_s = ctx.compile_s(compile_key + ("run",), module._run_jit, key, config, params, controls, observations,
-                              state)
-    timing = time_in_scan(module, config, params, state, controls, observations, repeats=scan_repeats,
-                          budget_s=scan_budget_s)
+    run_jit = module._run_jit_donated if donate_scan else module._run_jit
+    compile_s = ctx.compile_s(compile_key + ("run", donate_scan), run_jit, key, config, params, controls,
+                              observations, state)
+    if donate_scan:
+        del state
+    timing = time_in_scan(module, config, params, None if donate_scan else state, controls, observations,
+                          repeats=scan_repeats, budget_s=scan_budget_s, make_state=make_state if donate_scan else None)
+    name = module.__name__.rsplit('.', 1)[-1]
+    call = f"{name}.run(..., donate_state=True) on a fresh state" if donate_scan else f"{name}.run"
     return make_row(workload, "jaxnav", size, "in_scan", None, median_s=timing.median_s / t_len,
                     compile_s=compile_s, min_s=timing.min_s / t_len, repeats=timing.repeats, steps=t_len,
                     method=method, dtype="float32",
-                    note=f"{module.__name__.rsplit('.', 1)[-1]}.run over {t_len} steps (one lax.scan), time / {t_len}",
-                    **extra)
+                    note=f"{call} over {t_len} steps (one lax.scan), time / {t_len}", **extra)
 
 
 # ---------------------------------------------------------------------------

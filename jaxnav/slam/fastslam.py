@@ -793,9 +793,12 @@ def step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPara
     return _step_jit(key, state, config, params, control, observation)
 
 
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, state):
+def _run_scan(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, state):
     return scan_filter(_step, config, params, controls, observations, state, key, unroll=_run_unroll(config))
+
+
+_run_jit = jax.jit(_run_scan, static_argnames=("config",))
+_run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
 
 
 def _run_unroll(config: FastSLAMConfig) -> int:
@@ -812,16 +815,20 @@ def _run_unroll(config: FastSLAMConfig) -> int:
     return 2 if not _copies_in_place(config) and config.map_floats >= UNROLL_MIN_FLOATS else 1
 
 
-def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState):
+def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState,
+        donate_state: bool = False):
     """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
 
     Returns ``(final_state, trace)``; ``trace.estimate`` is ``[T, 3]``. Use
-    :func:`map_estimate` on the final state for the map.
+    :func:`map_estimate` on the final state for the map. With ``donate_state`` the
+    initial state's buffers are reused for the filter's state (do not use it after the
+    call); without it XLA copies the initial maps into the scan once per call.
     """
     _validate_params(config, params)
     _validate_state(config, initial_state)
     _validate_inputs(config, controls, observations, time_axis=True)
-    return _run_jit(key, config, params, controls, observations, initial_state)
+    run_jit = _run_jit_donated if donate_state else _run_jit
+    return run_jit(key, config, params, controls, observations, initial_state)
 
 
 @jax.jit

@@ -224,22 +224,31 @@ def step(key, state: PFSLAMState, config: PFSLAMConfig, params: PFSLAMParams, co
     return _step_jit(key, state, config, params, control, detections)
 
 
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(key, config, params, controls, detections, state):
+def _run_scan(key, config, params, controls, detections, state):
     return scan_filter(_step, config, params, controls, detections, state, key)
 
 
-def run(key, config: PFSLAMConfig, params: PFSLAMParams, controls, detections: hf_rfid.TagDetections, initial_state: PFSLAMState):
+_run_jit = jax.jit(_run_scan, static_argnames=("config",))
+_run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
+
+
+def run(key, config: PFSLAMConfig, params: PFSLAMParams, controls, detections: hf_rfid.TagDetections,
+        initial_state: PFSLAMState, donate_state: bool = False):
     """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
 
     Args:
         controls: ``[T, control_dim]`` odometry (for "omni": ``(v_x, v_y, ω, Δt)``).
         detections: :class:`~jaxnav.models.hf_rfid.TagDetections` with leading axis ``T``.
+        donate_state: reuse ``initial_state``'s buffers for the filter's state, which must not be
+            used after the call. Without it XLA copies the initial state into the scan once per
+            call: for large tables that copy costs more than the steps (S2: PF-SLAM at 100,000
+            tags, 120 MB, 0.55 → 0.27 ms per step over 200 steps).
 
     Returns ``(final_state, trace)``, ``trace`` a :class:`SLAMInfo` with leading axis ``T``.
     """
     _validate(config, params, initial_state, controls, detections, time_axis=True)
-    return _run_jit(key, config, params, controls, detections, initial_state)
+    run_jit = _run_jit_donated if donate_state else _run_jit
+    return run_jit(key, config, params, controls, detections, initial_state)
 
 
 map_estimate = jax.jit(_tag_slam.map_estimate)

@@ -303,16 +303,28 @@ def _robot_frame_model():
     )
 
 
+def _isotropic_footprint_model():
+    """HF_FOOTPRINT (closed-form update, pose-free covariances) with an isotropic noise ``sd² I``
+    given directly, so that it runs on the range-bearing world's robot-frame positions."""
+    return fs.HF_FOOTPRINT._replace(
+        name="isotropic_footprint", noise_cov=lambda sd: sd * sd * jnp.eye(2), validate=lambda sd: None
+    )
+
+
+def _robot_frame_sim(key, steps, sd):
+    """Controls and observations of the landmark world seen as robot-frame positions with noise ``sd``."""
+    u = lw.loop_controls(steps)
+    k_sim, k_noise = jax.random.split(key)
+    truth = lw.simulate(k_sim, LANDMARKS, X0, u, MOTION, SENSOR, max_range=6.0)
+    rel = jax.vmap(lambda x: jax.vmap(lambda m: hf_rfid.robot_frame(x, m))(LANDMARKS))(truth.true_poses)
+    return u, truth.observations._replace(z=rel + jax.random.normal(k_noise, rel.shape) * sd)
+
+
 def test_generic_observation_model(getkey):
     """FastSLAM maps a world observed through a different sensor model supplied by the caller."""
     om = _robot_frame_model()
     sd = jnp.asarray([0.05, 0.05])
-    steps = 150
-    u = lw.loop_controls(steps)
-    truth = lw.simulate(getkey(), LANDMARKS, X0, u, MOTION, SENSOR, max_range=6.0)
-    rel = jax.vmap(lambda x: jax.vmap(lambda m: om.mean(x, m))(LANDMARKS))(truth.true_poses)
-    z = rel + jax.random.normal(getkey(), rel.shape) * sd
-    obs = truth.observations._replace(z=z)
+    u, obs = _robot_frame_sim(getkey(), 150, sd)
     cfg = fs.FastSLAMConfig(num_particles=50, num_landmarks=8, observation_model=om)
     params = fs.FastSLAMParams(MOTION, sd)
     final, tr = fs.run(getkey(), cfg, params, u, obs, fs.init(getkey(), cfg, params, X0))
@@ -408,22 +420,6 @@ def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey)
         fs.FastSLAMConfig(map_copy="in_place", resampling="multinomial")
     with pytest.raises(ValueError, match="map_copy"):
         fs.FastSLAMConfig(map_copy="copy")
-
-
-def _isotropic_footprint_model():
-    """HF_FOOTPRINT (closed-form update, pose-free covariances) with an isotropic noise ``sd² I``
-    given directly, so that it runs on the range-bearing world's robot-frame positions."""
-    return fs.HF_FOOTPRINT._replace(
-        name="isotropic_footprint", noise_cov=lambda sd: sd * sd * jnp.eye(2), validate=lambda sd: None
-    )
-
-
-def _robot_frame_sim(key, steps, sd):
-    u = lw.loop_controls(steps)
-    k_sim, k_noise = jax.random.split(key)
-    truth = lw.simulate(k_sim, LANDMARKS, X0, u, MOTION, SENSOR, max_range=6.0)
-    rel = jax.vmap(lambda x: jax.vmap(lambda m: hf_rfid.robot_frame(x, m))(LANDMARKS))(truth.true_poses)
-    return u, truth.observations._replace(z=rel + jax.random.normal(k_noise, rel.shape) * sd)
 
 
 @pytest.mark.parametrize("version, map_copy", [(1, "gather"), (1, "in_place"), (2, "gather")])

@@ -105,7 +105,7 @@ def _jaxnav_uniform(key, dtype):
     """The systematic-resampling uniform jaxnav draws inside ``fastslam.step(key, ...)``."""
     _, k_resample = jax.random.split(key)  # fastslam._step
     k_res, _ = jax.random.split(k_resample)  # resampling.conditional_resample
-    return float(jax.random.uniform(k_res, (), jnp.result_type(dtype, jnp.float32)))  # resampling._systematic_p
+    return int(jax.random.bits(k_res, (), jnp.uint32)) / 2.0**32  # the systematic uniform u = U/2³² (resampling)
 
 
 def _assert_same(pf, new, tol_lw, tol_mean, tol_cov_rel, tol_pose):

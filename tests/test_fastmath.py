@@ -1,4 +1,4 @@
-"""Fast float32 kernels (jaxnav.core.fastmath) and the O(N) inverse CDF that uses them."""
+"""Fast float32 kernels and the exact integer cumulative sum of jaxnav.core.fastmath."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +7,6 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxnav.core import fastmath as fm
-from jaxnav.core import resampling as R
 
 F32_EPS = float(np.finfo(np.float32).eps)
 
@@ -45,39 +44,26 @@ def test_gradients_are_the_analytic_ones():
     check_grads(fm.atan2, (jnp.asarray([0.4, -1.2]), jnp.asarray([-0.7, 2.0])), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
 
 
-@pytest.mark.parametrize("n", [1, 7, 16, 17, 1000, 65537])
-def test_cumsum_is_accurate_and_monotone_even_with_zero_runs(n):
-    rng = np.random.default_rng(n)
-    x = (rng.random(n) ** 8).astype(np.float32)
-    x[n // 3 : n // 2] = 0.0  # long runs of zeros: the case that breaks naive blocked sums
-    got = np.asarray(jax.jit(fm.cumsum)(jnp.asarray(x)))
-    want = np.cumsum(x.astype(np.float64))
-    assert np.all(np.diff(got) >= 0)
-    np.testing.assert_allclose(got, want, rtol=0, atol=4 * F32_EPS * max(want[-1], 1e-30) * np.log2(max(n, 2)))
+@pytest.mark.parametrize("dtype", [jnp.int32, jnp.uint32])
+@pytest.mark.parametrize("m", [1, 5, 8, 9, 3000, 70001])
+def test_int_cumsum_is_exact_and_wraps_on_both_backends_paths(m, dtype):
+    """The blocked integer product (XLA:CPU) and ``jnp.cumsum`` (other backends) both equal NumPy's sum
+    modulo 2³², with values that overflow 32 bits many times over."""
+    x = np.random.default_rng(m).integers(0, 2**32, m, dtype=np.uint64)
+    want = (np.cumsum(x) % 2**32).astype(np.uint32).view(np.dtype(dtype))
+    arr = jnp.asarray(x.astype(np.uint32).view(np.dtype(dtype)))
+    np.testing.assert_array_equal(jax.jit(fm.int_cumsum)(arr), want)
+    np.testing.assert_array_equal(jax.jit(fm._blocked_int_cumsum)(arr), want)
+    np.testing.assert_array_equal(jax.jit(lambda v: jnp.cumsum(v, dtype=v.dtype))(arr), want)
+    np.testing.assert_array_equal(jax.jit(jax.vmap(fm.int_cumsum))(jnp.stack([arr, arr[::-1]])),
+                                  np.stack([want, (np.cumsum(x[::-1]) % 2**32).astype(np.uint32).view(np.dtype(dtype))]))
 
 
-@pytest.mark.parametrize("m", [5, 16, 3000, 70001])
-def test_count_cumsum_is_exact(m):
-    counts = np.random.default_rng(m).integers(0, 4, m)
-    np.testing.assert_array_equal(jax.jit(fm.count_cumsum)(jnp.asarray(counts)), np.cumsum(counts))
-
-
-@pytest.mark.parametrize("n", [3000, 100003])
-@pytest.mark.parametrize("spread", [0.1, 5.0, 40.0])
-def test_stratified_inverse_cdf_equals_binary_search(n, spread):
-    """The O(N) path returns exactly the searchsorted indices (systematic and stratified points)."""
-    rng = np.random.default_rng(int(spread * 10) + n)
-    lw = jnp.asarray(rng.normal(size=n) * spread, jnp.float32)
-    lw = lw.at[: n // 10].set(-jnp.inf)  # a run of zero weights
-    w = jnp.exp(lw - lw.max())
-    w = w / w.sum()
-    fast = jax.jit(R.stratified_inverse_cdf)
-    ref = jax.jit(R.inverse_cdf)
-    for u in [0.0, 0.5, float(np.nextafter(np.float32(1), np.float32(0)))]:
-        pts = (jnp.float32(u) + jnp.arange(n, dtype=jnp.float32)) / n
-        np.testing.assert_array_equal(fast(pts, w), ref(pts, w))
-    pts = (jax.random.uniform(jax.random.PRNGKey(n), (n,)) + jnp.arange(n)) / n
-    np.testing.assert_array_equal(fast(pts, w), ref(pts, w))
+def test_int_cumsum_refuses_other_types():
+    with pytest.raises(TypeError, match="int32 or uint32"):
+        fm.int_cumsum(jnp.ones(4))
+    with pytest.raises(TypeError, match="1-D"):
+        fm.int_cumsum(jnp.ones((4, 2), jnp.int32))
 
 
 @pytest.mark.parametrize(

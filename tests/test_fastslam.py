@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxnav import metrics
-from jaxnav.core import fastmath
+from jaxnav.core import fastmath, resampling
 from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
@@ -399,7 +399,7 @@ def test_in_place_map_copy_equals_gather(getkey, monkeypatch):
 
 def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey):
     """``map_copy="gather"`` (for vmapped batch runs) and ``"in_place"`` copy the same maps, also on
-    small maps where "auto" would gather; in place with unsorted ancestors is refused."""
+    small maps where "auto" would gather; every scheme's ancestors are sorted, so every scheme may copy in place."""
     m = 40
     rng = np.random.default_rng(1)
     means = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
@@ -416,8 +416,10 @@ def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey)
         rng.uniform(0, 10, (m, 2))
     for a, b in zip(out["gather"], out["in_place"]):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    with pytest.raises(ValueError, match="sorted ancestors"):
-        fs.FastSLAMConfig(map_copy="in_place", resampling="multinomial")
+    # Every scheme returns sorted ancestors, so every scheme may copy in place.
+    assert set(resampling.SCHEMES) <= set(resampling.SORTED_SCHEMES)
+    for scheme in resampling.SCHEMES:
+        fs.FastSLAMConfig(map_copy="in_place", resampling=scheme)
     with pytest.raises(ValueError, match="map_copy"):
         fs.FastSLAMConfig(map_copy="copy")
 

@@ -397,11 +397,10 @@ def _prototype_resample(key, poses, means, covs, log_weights, scheme: str):
 
     n = log_weights.shape[0]
     k_res, _ = jax.random.split(key)  # the split conditional_resample makes
-    scheme_p = resampling._ON_PROBABILITIES[resampling.get_resampler(scheme)]
-    idx = scheme_p(k_res, log_weights, jnp.exp(log_weights), n)
+    idx = resampling.resample_weights(k_res, jnp.exp(log_weights), n, scheme)
     poses = jnp.take(poses, idx, axis=0)
     row = math.prod(means.shape[1:]) + math.prod(covs.shape[1:])
-    if scheme in ("systematic", "stratified") and row >= INPLACE_MIN_FLOATS:
+    if scheme in resampling.SORTED_SCHEMES and row >= INPLACE_MIN_FLOATS:
         means, covs = inplace_ancestor_copy((means, covs), idx)
     else:
         means, covs = jnp.take(means, idx, axis=0), jnp.take(covs, idx, axis=0)
@@ -630,7 +629,7 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
         # log-weights after one real step (without resampling): realistic ancestors
         lw = jax.block_until_ready(fs._step_jit(keys[0], _fresh(state0), cfg_nr, params, ctrls[0], obs[0])[0].log_weights)
         k_res, _ = jax.random.split(jax.random.split(key)[1])
-        idx = resampling._systematic_p(k_res, lw, jnp.exp(lw), m)
+        idx = resampling.resample_weights(k_res, jnp.exp(lw), m)
         moved = int(jnp.sum(idx != jnp.arange(m)))
 
         @partial(jax.jit, donate_argnums=0)

@@ -1,25 +1,58 @@
-"""Resampling schemes on log-weights.
+"""Resampling schemes on log-weights, exact at any particle count.
 
 Overview
 --------
-Every scheme has the signature ``(key, log_weights, num_samples) -> indices``:
+Every scheme has the signature ``(key, log_weights, num_samples) -> ancestors``:
 it takes *unnormalised* log-weights ``[N]`` and returns ``num_samples`` int32
-ancestor indices in ``[0, N)``. All four are unbiased: the expected number of
-offspring of particle ``i`` is ``M·w̄_i`` (Douc & Cappé 2005).
+ancestor indices in ``[0, N)``, **in non-decreasing order**. All four are
+unbiased: the expected number of offspring of particle ``i`` is ``M·w̄_i``
+(Douc & Cappé 2005), ``M`` = ``num_samples``.
 
-* ``multinomial`` — i.i.d. draws from the categorical distribution.
-* ``systematic`` — one uniform ``u``, points ``(u + m)/M``; this is the
-  low-variance sampler of [A] App. B, O(N + M) here as there, but with no
-  sequential loop (:func:`stratified_inverse_cdf`).
-* ``stratified`` — one uniform per stratum ``[(m)/M, (m+1)/M)``.
+* ``systematic`` — one uniform ``u``, points ``(m + u)/M``: the low-variance
+  sampler of [A] App. B, with no sequential loop.
+* ``stratified`` — one uniform ``u_m`` per stratum, points ``(m + u_m)/M``.
+* ``multinomial`` — ``M`` i.i.d. draws from the categorical distribution,
+  generated as sorted uniforms (O(N + M), not an ``M × N`` block of draws).
+  Like the others it returns its ancestors sorted.
 * ``residual`` — ``⌊M w̄_i⌋`` deterministic copies, the remainder drawn
   multinomially from the residual weights.
 
-Numerical guards (float32): the cumulative sum is normalised by its last
-entry, queries are clamped below 1, and indices are clipped to ``[0, N)``, so
-extreme weights (one particle holding all the mass, entries of ``-inf``) never
-yield an out-of-range index. A degenerate set (all ``-inf``/NaN) is resampled
-uniformly.
+Exactness
+---------
+A float32 cumulative sum cannot resample large sets: near its top it moves in
+steps of 6·10⁻⁸ while a particle's weight at N = 10⁶ is 10⁻⁶, so tens of
+thousands of particles of positive weight can never be drawn, others are drawn
+up to several times too often, and a blocked sum can even give a particle of
+zero weight a sliver of the CDF. Here a resampling is exact:
+
+1. **Integer weights.** The weights are scaled by a power of two (exact) so that
+   their total lies in ``[2⁶⁰, 2⁶¹)`` and truncated to integers ``q_i``, held in
+   64 bits (:mod:`jaxnav.core.u64`). A float32 weight above ``2⁻³⁷`` of the total
+   (float64: ``2⁻⁸``) is represented exactly; a smaller one loses less than
+   ``2⁻⁵⁹`` of the total. A weight of zero (log-weight ``-inf``, or NaN, treated
+   as ``-inf``) is ``q_i = 0``.
+2. **An exact CDF.** ``S_i = Σ_{j≤i} q_j`` is an integer sum, the same in any
+   order (on one device or many); ``Q = S_{N−1}``.
+3. **Exact decisions.** A point ``x ∈ [0, 1)`` has ancestor ``min{i : x·Q < S_i}``.
+   The schemes' points are ``(s + f)/M`` (``s`` a stratum, ``f = F/2³²`` a 32-bit
+   uniform fraction), and ``(s + f)·Q < S_i·M`` is decided without division:
+   ``k_i = ⌊S_i·M/Q⌋`` and ``r_i = S_i·M − k_i·Q`` come from a precomputed
+   reciprocal and one correction (:func:`stratum_and_remainder`), and the point of
+   stratum ``k_i`` lies below ``S_i`` exactly when ``⌊F·Q/2³²⌋ < r_i``.
+
+So a resampling is an exact function of its uniforms: a particle with ``q_i = 0``
+has ``S_i = S_{i−1}`` and is never drawn, every ancestor is in ``[0, N)``, with
+equal weights and ``M = N`` systematic and stratified copy every particle exactly
+once at any N, and the expected number of offspring is ``M·q_i/Q``. The only
+departures from real arithmetic on the given weights are the truncation of
+weights below ``2⁻³⁷`` of the total and the 32-bit resolution of a uniform inside
+its stratum. Per particle the work is a few 32-bit multiplications (no binary
+search over N); the ancestors follow from the cumulative counts by one histogram
+and one integer cumulative sum (:func:`ancestors_from_counts`). Cost O(N + M);
+:func:`systematic` counts its passes over memory.
+
+:func:`inverse_cdf` gives the same guarantees for any points in ``[0, 1)``:
+``min{i : u·Q < S_i}`` with ``⌊u·Q⌋`` computed exactly from the float's mantissa.
 
 :func:`conditional_resample` applies a scheme only when the ESS falls below a
 fraction of N, decided independently for every run when vmapped;
@@ -29,14 +62,15 @@ fraction of N, decided independently for every run when vmapped;
 
 from __future__ import annotations
 
+import math
 from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import custom_batching
 
-from jaxnav.core import fastmath
+from jaxnav.core import fastmath, u64
 from jaxnav.core import weights as _w
+from jaxnav.core.u64 import U64
 
 __all__ = [
     "Resampler",
@@ -44,8 +78,17 @@ __all__ = [
     "systematic",
     "stratified",
     "residual",
+    "resample_weights",
     "inverse_cdf",
-    "stratified_inverse_cdf",
+    "IntegerCDF",
+    "integer_cdf",
+    "Scale",
+    "scale",
+    "stratum_and_remainder",
+    "ancestors_from_counts",
+    "SortedDraws",
+    "sorted_uniform_draws",
+    "MAX_SAMPLES",
     "SCHEMES",
     "get_resampler",
     "ResampleResult",
@@ -57,179 +100,397 @@ __all__ = [
     "REFRESHES",
     "copy_ancestors_in_place",
     "SORTED_SCHEMES",
+    "TOTAL_BITS",
 ]
 
-SORTED_SCHEMES = ("systematic", "stratified")
-"""Schemes whose ancestor indices are non-decreasing (required by :func:`copy_ancestors_in_place`)."""
+SORTED_SCHEMES = ("systematic", "stratified", "multinomial", "residual")
+"""Schemes whose ancestor indices are non-decreasing (required by :func:`copy_ancestors_in_place`): all four."""
+
+TOTAL_BITS = 61
+"""The integer weights of a resampling are scaled so that their total lies in ``[2^(TOTAL_BITS−1), 2^TOTAL_BITS)``
+(up to the 1 % accuracy of the float estimate that chooses the power of two)."""
+
+MAX_SAMPLES = 2**29 - 1
+"""The largest number of samples (and of particles) one resampling accepts."""
 
 Resampler = Callable[[jax.Array, jax.Array, int], jax.Array]
 
-
-def _cdf(weights: jax.Array) -> jax.Array:
-    cdf = fastmath.cumsum(weights)
-    # An explicit reciprocal: XLA may turn a division by a scalar into this
-    # product inside some fusions and not others, and the two resampling
-    # paths must see bit-identical CDFs.
-    return cdf * (1.0 / cdf[-1])
+_I32 = jnp.int32
+_U32 = jnp.uint32
+_SUM_BLOCK = 1024
 
 
-def _clamp_below_one(u: jax.Array, dtype) -> jax.Array:
-    # Guard float32 round-off: no query may reach the total mass.
-    return jnp.minimum(u, jnp.nextafter(jnp.asarray(1.0, dtype), 0.0))
+# --------------------------------------------------------------------------- integer weights and CDF
 
 
-def inverse_cdf(sorted_uniforms: jax.Array, weights: jax.Array) -> jax.Array:
-    """Indices ``A_m = min{j : u_m < Σ_{i≤j} w_i}`` for sorted uniforms in ``[0, 1)``.
+class IntegerCDF(NamedTuple):
+    """The exact CDF of a weight vector (see the module docstring).
 
-    ``weights`` are non-negative probabilities ``[N]`` (they need not sum to 1
-    exactly: the cumulative sum is rescaled by its last entry). This is the
-    inner loop of [A] App. B's low-variance sampler written as one
-    ``searchsorted`` (O(M log N)); it selects the same indices as
-    ``filterpy``'s ``systematic_resample`` for the same uniform draw. The
-    systematic and stratified schemes use :func:`stratified_inverse_cdf`,
-    which returns the same indices in O(N + M).
+    Attributes:
+        weights: ``[N]`` integer weights ``q_i`` (:class:`~jaxnav.core.u64.U64`).
+        cdf: ``[N]`` inclusive cumulative sums ``S_i``.
+        total: scalar ``Q = S_{N−1}``, in ``[0.99·2⁶⁰, 1.01·2⁶¹)``.
     """
-    cdf = _cdf(weights)
-    u = _clamp_below_one(sorted_uniforms, cdf.dtype)
-    idx = jnp.searchsorted(cdf, u, side="right")
-    return jnp.clip(idx, 0, weights.shape[0] - 1).astype(jnp.int32)
+
+    weights: U64
+    cdf: U64
+    total: U64
 
 
-_SMALL = 2048 * 2048  # below this N·M the searchsorted path is faster on XLA:CPU (W1), unbatched
+def _two_level_sum(x: jax.Array) -> jax.Array:
+    """``Σ x`` (x ≥ 0) as row sums of 1024, then their sum: relative error below (1024 + N/1024)·2⁻²⁴
+    even where XLA accumulates each level in one float32 register."""
+    n = x.shape[0]
+    if n <= _SUM_BLOCK:
+        return jnp.sum(x)
+    rows = jnp.pad(x, (0, (-n) % _SUM_BLOCK)).reshape(-1, _SUM_BLOCK)
+    return jnp.sum(jnp.sum(rows, axis=1))
 
 
-def stratified_inverse_cdf(points: jax.Array, weights: jax.Array) -> jax.Array:
-    """:func:`inverse_cdf` for points with ``points[m] ∈ [m/M, (m+1)/M]``, in O(N + M).
+def _power_of_two(exponent: jax.Array, dtype) -> jax.Array:
+    """``2^exponent`` as a float of ``dtype`` for a scalar integer in the normal range, built from its bits
+    (exact; ``jnp.ldexp`` is three times slower than a pass over the weights)."""
+    info = jnp.finfo(dtype)
+    bits_type = jnp.int32 if info.bits == 32 else jnp.int64
+    biased = jnp.clip(exponent, info.minexp, info.maxexp - 1).astype(bits_type) - info.minexp + 1
+    return jax.lax.bitcast_convert_type(biased << info.nmant, dtype)
 
-    Systematic and stratified points have one point per stratum, so the
-    number of points below ``cdf_i`` is ``⌊M·cdf_i⌋`` up to one or two (round-off
-    and the point inside the stratum). Counting ``c_i = #{m : p_m < cdf_i}``
-    exactly takes four comparisons around that estimate; then the index of
-    point ``m`` is ``#{i : c_i ≤ m}``, a histogram and a cumulative sum. No
-    binary search: this is the merge of [A] App. B's low-variance sampler
-    without its sequential loop. Returns exactly what :func:`inverse_cdf`
-    returns for the same points (a test checks it).
 
-    Which of the two computes it: unbatched, the binary search for small sets
-    (``N·M ≤ 2048²``, fewer operations to dispatch) and the merge above; under
-    ``vmap`` (many runs, or many tags' sets at once) always the merge, because a
-    batched binary search is a ``while`` loop of gathers that costs more than the
-    merge at every size we measured (PF-SLAM's 24 × 100-particle tag sets: a
-    third of the step). Indices carry no gradient, so the inputs are
-    ``stop_gradient``-ed (differentiating a filter through its resampling works).
+def integer_cdf(probabilities: jax.Array) -> IntegerCDF:
+    """Integer weights ``q_i = ⌊p_i·2^k⌋`` and their exact CDF, for non-negative ``probabilities [N]``.
+
+    ``p`` need not be normalised; NaN, ``±inf`` and negative entries count as zero.
+    The power of two ``2^k`` puts the total in ``[2⁶⁰, 2⁶¹)`` up to the float
+    estimate of the sum (within 1 %). An input with no positive entry (or only
+    entries below float32's smallest normal number) is treated as uniform. Exact for
+    any N (the sums are integer sums).
     """
-    return _stratified_inverse_cdf(jax.lax.stop_gradient(points), jax.lax.stop_gradient(weights))
-
-
-def _merge_inverse_cdf(points: jax.Array, weights: jax.Array) -> jax.Array:
-    n, m = weights.shape[0], points.shape[0]
-    cdf = _cdf(weights)
-    p = _clamp_below_one(points, cdf.dtype)
-    est = jnp.floor(cdf * m).astype(jnp.int32)
-
-    def below(j):  # [p_j < cdf_i] with p_{<0} = -inf and p_{≥M} = +inf
-        inside = (j >= 0) & (j < m)
-        return jnp.where(inside, jnp.take(p, jnp.clip(j, 0, m - 1)) < cdf, j < 0)
-
-    counts = est - 2 + sum(below(est + d).astype(jnp.int32) for d in (-2, -1, 0, 1))
-    counts = jnp.clip(counts, 0, m)
-    hist = jnp.zeros((m + 1,), jnp.int32).at[counts].add(1, indices_are_sorted=True)
-    return jnp.clip(fastmath.count_cumsum(hist[:m]), 0, n - 1)
-
-
-@custom_batching.custom_vmap
-def _stratified_inverse_cdf(points: jax.Array, weights: jax.Array) -> jax.Array:
-    if weights.shape[0] * points.shape[0] <= _SMALL:  # tiny sets: the binary search has fewer ops to dispatch
-        return inverse_cdf(points, weights)
-    return _merge_inverse_cdf(points, weights)
-
-
-@_stratified_inverse_cdf.def_vmap
-def _stratified_inverse_cdf_batched(axis_size, in_batched, points, weights):
-    points = points if in_batched[0] else jnp.broadcast_to(points, (axis_size,) + points.shape)
-    weights = weights if in_batched[1] else jnp.broadcast_to(weights, (axis_size,) + weights.shape)
-    return jax.vmap(_merge_inverse_cdf)(points, weights), True
-
-
-# Each scheme is written on normalised probabilities ``p`` (and the matching
-# normalised log-weights, which multinomial draws from), so that a filter that
-# has already normalised its weights does not pay for it again.
-
-
-def _multinomial_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
-    return jax.random.categorical(key, log_p, shape=(num_samples,)).astype(jnp.int32)
-
-
-def _systematic_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
-    dtype = jnp.result_type(p.dtype, jnp.float32)
-    u = jax.random.uniform(key, (), dtype)
-    points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return stratified_inverse_cdf(points, p)
-
-
-def _stratified_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
-    dtype = jnp.result_type(p.dtype, jnp.float32)
-    u = jax.random.uniform(key, (num_samples,), dtype)
-    points = (u + jnp.arange(num_samples, dtype=dtype)) / num_samples
-    return stratified_inverse_cdf(points, p)
-
-
-def _residual_p(key: jax.Array, log_p: jax.Array, p: jax.Array, num_samples: int) -> jax.Array:
+    p = jax.lax.stop_gradient(probabilities)
+    p = jnp.where((p > 0) & (p < jnp.inf), p, 0.0)
     n = p.shape[0]
-    counts = jnp.floor(num_samples * p)
-    counts_int = counts.astype(jnp.int32)
-    n_det = jnp.sum(counts_int)
-    # Deterministic copies: slot m belongs to the particle whose cumulative count exceeds m.
-    cum = jnp.cumsum(counts_int)
-    slots = jnp.arange(num_samples, dtype=jnp.int32)
-    det_idx = jnp.clip(jnp.searchsorted(cum, slots, side="right"), 0, n - 1)
-    resid = num_samples * p - counts
-    resid_total = jnp.sum(resid)
-    log_resid = jnp.where(resid > 0, jnp.log(jnp.where(resid > 0, resid, 1.0)), -jnp.inf)
-    # When nothing is left over every slot is deterministic; any finite logits do.
-    log_resid = jnp.where(resid_total > 0, log_resid, jnp.zeros_like(log_resid))
-    rand_idx = jax.random.categorical(key, log_resid, shape=(num_samples,))
-    return jnp.where(slots < n_det, det_idx, rand_idx).astype(jnp.int32)
+    _, top_exp = jnp.frexp(jnp.max(p))
+    p = p * _power_of_two(-top_exp, p.dtype)  # exact: the largest weight now lies in [0.5, 1)
+    total = _two_level_sum(p)
+    empty = ~(total > 0)
+    p = jnp.where(empty, 1.0, p)
+    total = jnp.where(empty, jnp.asarray(n, p.dtype), total)
+    _, total_exp = jnp.frexp(total)
+    q = u64.from_float(p * _power_of_two(TOTAL_BITS - total_exp, p.dtype))
+    cdf = u64.cumsum(q)
+    return IntegerCDF(q, cdf, U64(cdf.hi[-1], cdf.lo[-1]))
 
 
-def _on_log_weights(scheme_p):
-    def resampler(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-        log_p = _w.normalize(log_weights).log_weights
-        return scheme_p(key, log_p, jnp.exp(log_p), num_samples)
-
-    return resampler
+# --------------------------------------------------------------------------- strata without division
 
 
-def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Multinomial resampling: ``num_samples`` i.i.d. categorical draws."""
-    return _on_log_weights(_multinomial_p)(key, log_weights, num_samples)
+class Scale(NamedTuple):
+    """``M`` equal strata of ``[0, Q)``, with the reciprocal ``R = ⌊M·2⁶²/Q⌋`` that replaces division by ``Q``."""
+
+    total: U64
+    count: jax.Array  # M, uint32, may be traced
+    reciprocal: jax.Array  # R, uint32 (< 2^31.1 for M ≤ MAX_SAMPLES and Q ≥ 0.99·2⁶⁰)
+    size: int  # the static number of sample slots (M ≤ size)
 
 
-def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Systematic (low-variance) resampling, [A] App. B: points ``(u + m)/M``, one ``u``."""
-    return _on_log_weights(_systematic_p)(key, log_weights, num_samples)
+def _u96_to_float(w2, w1, w0) -> jax.Array:
+    f32 = jnp.float32
+    return (w2.astype(f32) * 2.0**32 + w1.astype(f32)) * 2.0**32 + w0.astype(f32)
+
+
+def scale(total: U64, count, size: int) -> Scale:
+    """The :class:`Scale` of ``count`` (≤ ``size``, static) strata of ``[0, total)`` (``R`` computed exactly, once)."""
+    if not 1 <= size <= MAX_SAMPLES:
+        raise ValueError(f"the number of samples must be in [1, {MAX_SAMPLES}], got {size}")
+    m = jnp.asarray(count).astype(_U32)
+    q = u64.where((total.hi > 0) | (total.lo > 0), total, u64.constant(1))
+    # M·2⁶² as three words, and a float estimate of its quotient by Q (off by at most 2¹⁰).
+    n2, n1 = m >> 2, (m & 3) << 30
+    est = jnp.floor(_u96_to_float(n2, n1, jnp.zeros_like(m)) / u64.to_float(q))
+    r = jnp.clip(est - 2.0**10, 0, 2.0**32 - 1).astype(_U32)  # a lower bound
+    # Exact remainder M·2⁶² − r·Q (< 2¹¹·Q < 2⁷³, so two words and a bit: keep three).
+    p2, p1, p0 = u64.mul_u32(q, r)
+    d0 = jnp.zeros_like(m) - p0
+    b0 = (p0 > 0).astype(_U32)
+    d1 = n1 - p1 - b0
+    b1 = ((n1 < p1) | ((n1 == p1) & (b0 > 0))).astype(_U32)
+    d2 = n2 - p2 - b1
+    step = jnp.floor(_u96_to_float(d2, d1, d0) * (1.0 - 2.0**-20) / u64.to_float(q)).astype(_U32)
+    r = r + step
+    rem = u64.sub(U64(d1, d0), u64.mul_low(q, step))  # < 3Q, fits 64 bits
+    for _ in range(2):
+        over = ~u64.less(rem, q)
+        r = jnp.where(over, r + 1, r)
+        rem = u64.where(over, u64.sub(rem, q), rem)
+    return Scale(q, m, r, size)
+
+
+def stratum_and_remainder(sc: Scale, x: U64) -> tuple[jax.Array, U64]:
+    """``k = ⌊x·M/Q⌋`` (int32) and ``r = x·M − k·Q ∈ [0, Q)`` for integers ``0 ≤ x ≤ Q``, exactly.
+
+    ``k̃ = ⌊x·R/2⁶²⌋`` is ``k`` or ``k − 1`` (``R`` underestimates ``M·2⁶²/Q`` by less
+    than one, and ``x/2⁶² < 1/2``), so ``x·M − k̃·Q`` lies in ``[0, 2Q)`` and one comparison
+    finishes. The remainder is computed modulo 2⁶⁴ (it is below 2⁶³): five 32-bit
+    multiplications for ``x·M``, five for ``k̃·Q``, four for ``x·R``. Every step is
+    elementwise, so XLA keeps a whole resampling stage in one loop.
+
+    A point ``(k + f)/M`` of the total, ``f ∈ [0, 1)``, lies below ``x`` exactly when
+    ``f·Q < r``: the strata's points are compared through ``r``, with no division.
+    """
+    w2, w1, _ = u64.mul_u32(x, sc.reciprocal)
+    k = (w2 << 2) | (w1 >> 30)
+    r = u64.sub(u64.mul_low(x, sc.count), u64.mul_low(sc.total, k))
+    over = ~u64.less(r, sc.total)
+    return (k + over.astype(_U32)).astype(_I32), u64.where(over, u64.sub(r, sc.total), r)
+
+
+# --------------------------------------------------------------------------- counts -> ancestors
+
+
+def ancestors_from_counts(cumulative: jax.Array, num_samples: int, single_reader: bool = False) -> jax.Array:
+    """Ancestors ``a_m = #{i : C_i ≤ m}`` from the cumulative offspring counts ``C [N]`` (``C_{N−1} = M``).
+
+    Particle ``i`` has ``C_i − C_{i−1}`` offspring, placed in order; one histogram of
+    ``C`` and one integer cumulative sum. Slots ``m ≥ C_{N−1}`` (when fewer samples
+    are active than ``num_samples``) get ``N − 1``. ``single_reader``: see
+    :func:`jaxnav.core.fastmath.int_cumsum`.
+    """
+    n = cumulative.shape[0]
+    at = jnp.clip(cumulative, 0, num_samples)
+    # Updates computed from the indices fuse with them; a constant 1 would be written out as an array.
+    hist = jnp.zeros((num_samples + 1,), _I32).at[at].add((at >= 0).astype(_I32), indices_are_sorted=True)
+    return jnp.minimum(fastmath.int_cumsum(hist[:num_samples], single_reader=single_reader), n - 1)
+
+
+# --------------------------------------------------------------------------- the schemes, on probabilities
+
+
+def _systematic_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
+    """``#{s : (s + u)/M·Q < S_i}`` with one 32-bit uniform ``u = U/2³²``: ``k + [k < M and ⌊U·Q/2³²⌋ < r]``."""
+    offset = u64.mul_high(sc.total, jax.random.bits(key, (), _U32))
+    k, r = stratum_and_remainder(sc, cdf.cdf)
+    return k + ((k < sc.count.astype(_I32)) & u64.less(offset, r)).astype(_I32)
+
+
+def _stratified_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
+    """As :func:`_systematic_counts` with one uniform ``U_s`` per stratum."""
+    u = jax.random.bits(key, (sc.size,), _U32)
+    k, r = stratum_and_remainder(sc, cdf.cdf)
+    offset = u64.mul_high(sc.total, jnp.take(u, k, mode="clip"))
+    return k + ((k < sc.count.astype(_I32)) & u64.less(offset, r)).astype(_I32)
+
+
+_SPACING_BITS = 20  # exponential spacings as integers: resolution 2⁻²⁰ of their mean
+
+
+def _spacings(key: jax.Array, size: int) -> jax.Array:
+    """``⌊E·2²⁰⌋ + 1`` for i.i.d. ``E ~ Exp(1)`` (from float32 uniforms in ``[2⁻²⁴, 1)``, so ``E ≤ 16.7``)."""
+    e = -jnp.log(jax.random.uniform(key, (size,), jnp.float32, minval=2.0**-24, maxval=1.0))
+    return (e * 2.0**_SPACING_BITS).astype(_U32) + 1
+
+
+class SortedDraws(NamedTuple):
+    """``size`` slots; the first ``count`` hold i.i.d. uniform points ``(s + f)/M`` of ``[0, 1)``, in order.
+
+    Attributes:
+        stratum: ``[size]`` int32 stratum ``s`` of each slot (non-decreasing).
+        fraction: ``[size]`` uint32 position ``f = F/2³²`` inside the stratum (increasing inside a stratum).
+        first: ``[size + 1]`` int32 first slot of each stratum.
+        occupancy: ``[size]`` int32 number of points in each stratum.
+    """
+
+    stratum: jax.Array
+    fraction: jax.Array
+    first: jax.Array
+    occupancy: jax.Array
+
+
+def sorted_uniform_draws(key: jax.Array, count: jax.Array, num_strata: jax.Array, size: int) -> SortedDraws:
+    """``count`` (≤ ``size``) i.i.d. uniform points of ``[0, 1)`` in increasing order, in O(size).
+
+    Each point's stratum ``s`` (of ``num_strata``) is drawn uniformly from 64 random
+    bits; one histogram and two integer cumulative sums group the points by stratum,
+    in order. Inside a stratum holding ``K`` points the fractions are the order
+    statistics of ``K`` uniforms: ``K + 1`` exponential spacings (integers, resolution
+    2⁻²⁰ of their mean), partial sums over their total, to 32 bits. The strata are
+    equally likely to 2⁻⁶⁴ and a fraction is exact to about 2⁻²⁴ of its stratum.
+    """
+    k_stratum, k_space, k_gap = jax.random.split(key, 3)
+    bits = jax.random.bits(k_stratum, (2, size), _U32)
+    stratum_of_draw = u64.mul_u32(U64(bits[0], bits[1]), jnp.asarray(num_strata).astype(_U32))[0].astype(_I32)
+    active = jnp.arange(size, dtype=_I32) < count
+    occupancy = jnp.zeros((size,), _I32).at[stratum_of_draw].add(active.astype(_I32), mode="drop")
+    last = fastmath.int_cumsum(occupancy)  # one past the last slot of each stratum
+    first = jnp.concatenate([jnp.zeros((1,), _I32), last])
+    stratum = ancestors_from_counts(last, size)  # the stratum of every slot, non-decreasing
+    run = fastmath.int_cumsum(_spacings(k_space, size))  # wrapping: differences inside a stratum are exact
+    start = jnp.take(first, stratum)
+    before = jnp.where(start > 0, jnp.take(run, start - 1, mode="clip"), 0)
+    end = jnp.take(run, jnp.take(last, stratum) - 1, mode="clip")
+    gap = jnp.take(_spacings(k_gap, size), stratum)
+    fraction = (run - before).astype(jnp.float32) / (end - before + gap).astype(jnp.float32)
+    fraction = jnp.minimum(fraction * 2.0**32, 2.0**32 - 256).astype(_U32)
+    return SortedDraws(stratum, fraction, first, occupancy)
+
+
+def _prefix_count(lo: jax.Array, hi: jax.Array, holds) -> jax.Array:
+    """``lo + #{p ∈ [lo, hi) : holds(p)}`` for a predicate that holds on a prefix of every range: a binary
+    search whose trip count, ``⌈log₂(max(hi − lo) + 1)⌉``, is that of the widest range."""
+
+    def body(_, bounds):
+        lo, hi = bounds
+        mid = (lo + hi) // 2
+        right = (lo < hi) & holds(mid)
+        return jnp.where(right, mid + 1, lo), jnp.where((lo < hi) & ~right, mid, hi)
+
+    widest = jnp.max(hi - lo).astype(_I32)
+    lo, _ = jax.lax.fori_loop(0, 32 - jax.lax.clz(widest), body, (lo, hi))
+    return lo
+
+
+def _counts_below(key: jax.Array, stratum: jax.Array, remainder: U64, total: U64, num_draws: jax.Array, size: int):
+    """``#{p : (s_p + F_p/2³²) < k_i + r_i/Q}`` for :func:`sorted_uniform_draws` of ``num_draws`` points in as many
+    unit strata, against boundaries given as a stratum ``k_i`` (int32) and a remainder ``r_i ∈ [0, Q)``.
+
+    The points of strata below ``k_i`` all count; a point of stratum ``k_i`` counts exactly when
+    ``⌊F·Q/2³²⌋ < r_i``, found by a binary search among that stratum's points.
+    """
+    draws = sorted_uniform_draws(key, num_draws, num_draws, size)
+    inside = stratum < num_draws
+    lo = jnp.where(inside, jnp.take(draws.first, stratum, mode="clip"), num_draws)
+    hi = jnp.where(inside, lo + jnp.take(draws.occupancy, stratum, mode="clip"), lo)
+    return _prefix_count(
+        lo, hi, lambda p: u64.less(u64.mul_high(total, jnp.take(draws.fraction, p, mode="clip")), remainder)
+    )
+
+
+def _multinomial_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
+    """``M`` i.i.d. uniform points of ``[0, M)`` (in units of ``Q/M``) against ``S_i·M/Q = k_i + r_i/Q``."""
+    k, r = stratum_and_remainder(sc, cdf.cdf)
+    return _counts_below(key, k, r, sc.total, sc.count.astype(_I32), sc.size)
+
+
+def _residual_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
+    """``d_i = ⌊M·q_i/Q⌋`` copies of particle ``i``, then ``M − Σd`` multinomial draws on the residuals.
+
+    In units of one expected offspring, particle ``i`` owns ``[R_{i−1}, R_i)`` of the residual mass, with
+    ``R_i = M·S_i/Q − D_i`` and ``D_i = Σ_{j≤i} d_j``. With ``M·S_i = K_i·Q + r_i`` (the strata of
+    :func:`stratum_and_remainder`), ``R_i = (K_i − D_i) + r_i/Q``: the residual boundaries are exact with no
+    arithmetic wider than the main CDF's, and the draws are uniform points of ``[0, M − Σd)``.
+    """
+    copies, _ = stratum_and_remainder(sc, cdf.weights)
+    fixed = fastmath.int_cumsum(copies)
+    k, r = stratum_and_remainder(sc, cdf.cdf)
+    num_draws = sc.count.astype(_I32) - fixed[-1]
+    return fixed + _counts_below(key, k - fixed, r, sc.total, num_draws, sc.size)
+
+
+_COUNTS = {
+    "systematic": _systematic_counts,
+    "stratified": _stratified_counts,
+    "multinomial": _multinomial_counts,
+    "residual": _residual_counts,
+}
+
+
+def resample_weights(
+    key: jax.Array,
+    weights: jax.Array,
+    num_samples: int,
+    scheme: str = "systematic",
+    num_active: jax.Array | None = None,
+) -> jax.Array:
+    """Ancestors ``[num_samples]`` (int32, non-decreasing) drawn from non-negative ``weights [N]`` (not logs).
+
+    The scheme functions (:func:`systematic`, …) take log-weights and call this with
+    ``exp(ℓ − max ℓ)``. ``weights`` need not be normalised; NaN, ``±inf`` and negative
+    entries count as zero, and a vector with no positive entry is resampled as if
+    uniform. ``num_active`` (optional, may be traced, ``1 ≤ num_active ≤
+    num_samples``): draw that many samples into the first slots (``M = num_active``);
+    the remaining slots hold ``N − 1`` and are for the caller to mask.
+
+    The uniforms each scheme draws from ``key`` (a reference implementation can
+    reproduce them): systematic ``U = jax.random.bits(key, (), uint32)``; stratified
+    ``U = jax.random.bits(key, (num_samples,), uint32)``, ``U_s`` for stratum ``s``;
+    multinomial :func:`sorted_uniform_draws` ``(key, M, M, num_samples)`` (points
+    ``s + F/2³²`` of ``[0, M)``, in units of ``Q/M``); residual the same with
+    ``M − Σ⌊M·q_i/Q⌋`` draws and strata.
+    """
+    if scheme not in _COUNTS:
+        raise ValueError(f"resampling scheme {scheme!r} is unknown; choose one of {sorted(_COUNTS)}")
+    if num_active is not None and scheme != "systematic":
+        raise ValueError(f"num_active is supported by the systematic scheme only, not {scheme!r}")
+    cdf = integer_cdf(weights)
+    sc = scale(cdf.total, num_samples if num_active is None else num_active, num_samples)
+    return ancestors_from_counts(_COUNTS[scheme](key, cdf, sc), num_samples, single_reader=True)
+
+
+def _on_log_weights(scheme: str, key, log_weights, num_samples, num_active=None):
+    # exp(ℓ − max ℓ) suffices: the integer weights are normalised exactly (an all −inf set gives NaN,
+    # which integer_cdf treats as uniform).
+    lw = _w.sanitize_log_weights(jax.lax.stop_gradient(log_weights))
+    return resample_weights(key, jnp.exp(lw - jnp.max(lw)), num_samples, scheme, num_active)
+
+
+def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int, num_active: jax.Array | None = None) -> jax.Array:
+    """Systematic (low-variance) resampling, [A] App. B: one uniform ``u``, points ``(s + u)/M``.
+
+    ``u = U/2³²`` with ``U = jax.random.bits(key, (), uint32)``; the ancestors are exactly
+    those of real arithmetic on the integer weights (module docstring). Particle ``i``
+    gets ``⌊M w̄_i⌋`` or ``⌈M w̄_i⌉`` offspring. ``num_active``: see :func:`resample_weights`.
+
+    Memory passes (float32 weights, N = M): the log-weights are read three times (their
+    maximum, the sum of the weights, the two integer words of each weight, fused into the
+    first cumulative sum); the two integer cumulative sums read and write their words about
+    three times each; one fused pass finds each particle's stratum and compares it with
+    the stratum's point; the ancestors take a histogram and one more cumulative sum. About
+    fifteen passes in all, against the two of the memory floor (read the weights, write the
+    indices).
+    """
+    return _on_log_weights("systematic", key, log_weights, num_samples, num_active)
 
 
 def stratified(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
-    """Stratified resampling: one uniform in each stratum ``[m/M, (m+1)/M)``."""
-    return _on_log_weights(_stratified_p)(key, log_weights, num_samples)
+    """Stratified resampling: one uniform ``u_s = U_s/2³²`` per stratum, points ``(s + u_s)/M``.
+
+    ``U = jax.random.bits(key, (num_samples,), uint32)``. Exact as :func:`systematic`;
+    a particle's count is within two of ``M w̄_i``.
+    """
+    return _on_log_weights("stratified", key, log_weights, num_samples)
+
+
+def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
+    """Multinomial resampling: ``num_samples`` i.i.d. categorical draws, returned sorted.
+
+    The draws are the sorted i.i.d. uniforms of :func:`sorted_uniform_draws`, merged with
+    the exact CDF in O(N + M) instead of the ``M × N`` Gumbel block of
+    ``jax.random.categorical`` (8.4 s at N = M = 16,000). The binary search inside a
+    stratum takes ``⌈log₂(K_max + 1)⌉`` steps, ``K_max`` the most draws one stratum
+    received (about 10 at M = 10⁸). The ancestors are sorted; their order carries no
+    information.
+    """
+    return _on_log_weights("multinomial", key, log_weights, num_samples)
 
 
 def residual(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax.Array:
     """Residual resampling: ``⌊M w̄_i⌋`` copies, the rest multinomial on the residuals.
 
-    Shapes are static: the deterministic part fills the first
-    ``Σ⌊M w̄_i⌋`` slots (found with an inverse CDF on the integer counts), the
-    remaining slots take multinomial draws from ``M w̄_i − ⌊M w̄_i⌋``.
+    ``d_i = ⌊M·q_i/Q⌋`` copies; the ``M − Σd`` remaining samples are i.i.d. draws with
+    probabilities proportional to the residuals ``M·q_i/Q − d_i``, whose cumulative sums
+    are exact (see ``_residual_counts``). Ancestors are sorted.
     """
-    return _on_log_weights(_residual_p)(key, log_weights, num_samples)
+    return _on_log_weights("residual", key, log_weights, num_samples)
 
 
+# The schemes on normalised probabilities ``p`` (and the matching normalised log-weights), so that a
+# filter that has already normalised its weights does not pay for it again.
 _ON_PROBABILITIES = {
-    multinomial: _multinomial_p,
-    systematic: _systematic_p,
-    stratified: _stratified_p,
-    residual: _residual_p,
+    scheme: (lambda name: lambda key, log_p, p, num_samples: resample_weights(key, p, num_samples, name))(name)
+    for name, scheme in (
+        ("multinomial", multinomial),
+        ("systematic", systematic),
+        ("stratified", stratified),
+        ("residual", residual),
+    )
 }
 
 
@@ -249,6 +510,82 @@ def get_resampler(name: str) -> Resampler:
         raise ValueError(
             f"resampling scheme {name!r} is unknown; choose one of {sorted(SCHEMES)}"
         ) from None
+
+
+# --------------------------------------------------------------------------- inverse CDF of given points
+
+
+def _mantissa_times(total: U64, u: jax.Array) -> U64:
+    """``⌊u·Q⌋`` exactly, for floats ``u`` in ``[0, 1)`` (float32: 24-bit, float64: 53-bit mantissas)."""
+    frac, exp = jnp.frexp(u)  # u = frac·2^exp, frac ∈ [0.5, 1)
+    digits = jnp.finfo(u.dtype).nmant + 1
+    mant = jnp.ldexp(frac, digits)  # an integer < 2^digits, exact
+    m_hi = jnp.floor(jnp.ldexp(mant, -32))
+    m_lo = (mant - jnp.ldexp(m_hi, 32)).astype(_U32)
+    m_hi = m_hi.astype(_U32)
+    # 128-bit product total·mant as four words w0..w3
+    p_lo = u64.mul_u32(total, m_lo)  # (w2, w1, w0)
+    p_hi = u64.mul_u32(total, m_hi)  # shifted by one word
+    w0 = p_lo[2]
+    w1 = p_lo[1] + p_hi[2]
+    c1 = (w1 < p_lo[1]).astype(_U32)
+    w2 = p_lo[0] + p_hi[1]
+    c2 = (w2 < p_lo[0]).astype(_U32)
+    w2c = w2 + c1
+    c2 = c2 + (w2c < w2).astype(_U32)
+    w3 = p_hi[0] + c2
+    words = jnp.stack([w0, w1, w2c, w3, jnp.zeros_like(w0), jnp.zeros_like(w0)])
+    shift = (digits - exp).astype(_I32)  # ≥ digits, since u < 1
+    word, bit = shift // 32, (shift % 32).astype(_U32)
+
+    def pick(i):
+        return jnp.take_along_axis(words, jnp.clip(word + i, 0, 5)[None], axis=0)[0]
+
+    def shifted(i):
+        low, high = pick(i), pick(i + 1)
+        spill = jnp.where(bit == 0, 0, high << (32 - jnp.maximum(bit, 1)))
+        return (low >> bit) | spill
+
+    value = U64(jnp.where(word >= 4, 0, shifted(1)), jnp.where(word >= 4, 0, shifted(0)))
+    return u64.where(u > 0, value, U64(jnp.zeros_like(w0), jnp.zeros_like(w0)))
+
+
+def _points_of_uniforms(total: U64, u: jax.Array) -> U64:
+    """Integer points ``⌊u·Q⌋`` of uniforms ``u``; ``u ≥ 1`` maps to ``Q − 1`` and NaN or ``u < 0`` to 0."""
+    u = jax.lax.stop_gradient(u)
+    top = u >= 1
+    u = jnp.where((u >= 0) & ~top, u, jnp.zeros_like(u))
+    y = _mantissa_times(total, u)
+    return u64.where(top, u64.sub(total, U64(jnp.zeros_like(y.hi), jnp.ones_like(y.lo))), y)
+
+
+def inverse_cdf(uniforms: jax.Array, weights: jax.Array) -> jax.Array:
+    """Ancestors ``A_m = min{j : u_m·Q < S_j}`` of points ``u_m ∈ [0, 1)``, exactly (any order of the points).
+
+    ``weights [N]`` are non-negative (un-normalised allowed; see :func:`integer_cdf`).
+    ``S`` is the exact integer CDF of the module docstring and ``⌊u·Q⌋`` is computed
+    exactly from the float's mantissa, so a particle of zero weight is never returned
+    and every index is in ``[0, N)``; ``u ≥ 1`` returns the last particle of positive
+    weight. This is [A] App. B's inverse CDF: it selects the same indices as
+    ``filterpy``'s ``systematic_resample`` for the same uniform draw whenever float64
+    arithmetic decides them correctly.
+
+    Cost O(N + P·log(B + 1)) for P points, ``B`` the most CDF values ``S_i`` in one of
+    ``N`` equal strata of ``[0, Q)`` (1–3 for ordinary weights): each point's stratum
+    comes from :func:`stratum_and_remainder`, then a binary search runs among the
+    particles whose CDF values fall in that stratum.
+    """
+    cdf = integer_cdf(weights)
+    n = weights.shape[0]
+    sc = scale(cdf.total, n, n)
+    k, r = stratum_and_remainder(sc, cdf.cdf)
+    ceiling = k + ((r.hi > 0) | (r.lo > 0)).astype(_I32)  # ⌈S_i·N/Q⌉
+    # left[s] = #{i : S_i·N ≤ s·Q}: the particles left of stratum s
+    left = fastmath.int_cumsum(jnp.zeros((n + 1,), _I32).at[ceiling].add(1, indices_are_sorted=True))
+    points = _points_of_uniforms(cdf.total, uniforms)
+    s, _ = stratum_and_remainder(sc, points)
+    lo, hi = jnp.take(left, s, mode="clip"), jnp.take(left, jnp.minimum(s + 1, n), mode="clip")
+    return jnp.minimum(_prefix_count(lo, hi, lambda i: u64.less_equal(u64.take(cdf.cdf, i), points)), n - 1)
 
 
 class ResampleResult(NamedTuple):

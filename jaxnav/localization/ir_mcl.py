@@ -427,11 +427,12 @@ def init(
     if not all(math.isfinite(v) for v in (x0, x1, y0, y1)) or not (x1 > x0 and y1 > y0):
         raise ValueError(f"area must be finite with x_min < x_max and y_min < y_max, got {area}")
     n = config.num_particles
-    u = jax.random.uniform(key, (n, 3))
-    lo = jnp.asarray([x0, y0, -math.pi], jnp.float32)
-    hi = jnp.asarray([x1, y1, math.pi], jnp.float32)
+    dtype = jnp.result_type(float)  # float64 under jax_enable_x64; the log-weights follow the particles
+    u = jax.random.uniform(key, (n, 3), dtype)
+    lo = jnp.asarray([x0, y0, -math.pi], dtype)
+    hi = jnp.asarray([x1, y1, math.pi], dtype)
     p = lo + u * (hi - lo)
-    return IRMCLState(p, jnp.full((n,), -np.log(n), jnp.float32), jnp.asarray(False))
+    return IRMCLState(p, jnp.full((n,), -np.log(n), dtype), jnp.asarray(False))
 
 
 # ---------------------------------------------------------------------------
@@ -465,9 +466,7 @@ def _redraw(key, headings, emitter_xy, offset, voltage, params):
     centres = (jnp.arange(_REDRAW_BINS, dtype=dtype) + 0.5) * width
     ll = jnp.maximum(ir.log_likelihood(voltage, centres, params.voltage, params.sigma_v), params.log_floor)
     logits = jnp.log(centres) + ll
-    cdf = jnp.cumsum(jnp.exp(logits - jnp.max(logits)))
-    b = jnp.searchsorted(cdf, jax.random.uniform(k_bin, (m,), dtype) * cdf[-1], side="right")
-    b = jnp.minimum(b, _REDRAW_BINS - 1).astype(dtype)
+    b = resampling.inverse_cdf(jax.random.uniform(k_bin, (m,), dtype), jnp.exp(logits - jnp.max(logits))).astype(dtype)
     lo, hi = b * width, (b + 1) * width
     u = jax.random.uniform(k_in, (m,), dtype)
     e_d = jnp.sqrt(lo * lo + u * (hi * hi - lo * lo))  # uniform in area between the bin's edges
@@ -545,9 +544,8 @@ def _step(
         headings = jax.random.uniform(k_head, (k * n,), moved.dtype, -jnp.pi, jnp.pi)
         cand = _redraw(k_cand, headings, layout.positions[carrier[r0]], params.offsets[r0], det.voltage[r0], params)
         idx, ok = _attribute(cand, jnp.full((k * n,), 1.0 / (k * n), cand.dtype), mask, known, params)
-        probs = jnp.exp(weights.normalize(_loglik(cand, idx, ok & not_r0, det.voltage, params)).log_weights)
-        points = (jax.random.uniform(k_pick, (), cand.dtype) + jnp.arange(n, dtype=cand.dtype)) / n
-        return jnp.take(cand, resampling.inverse_cdf(points, probs), axis=0)  # systematic, [A] App. B
+        loglik = _loglik(cand, idx, ok & not_r0, det.voltage, params)
+        return jnp.take(cand, resampling.systematic(k_pick, loglik, n), axis=0)  # [A] App. B
 
     particles = jax.lax.cond(trigger, restart, lambda: moved)
     prior_lw = jnp.where(trigger, uniform, state.log_weights)
@@ -563,7 +561,7 @@ def _step(
 
     # eq. 5.4 and Alg. 3 lines 16–20 (only at a step that weighted the particles)
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, norm.degenerate)
     threshold = jnp.where(jnp.any(apply), jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
     res = resampling.conditional_resample(
         k_resample, particles, norm.log_weights, threshold=threshold, scheme=config.resampling, normalized=True

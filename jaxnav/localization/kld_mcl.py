@@ -273,13 +273,6 @@ def _choose_count(k_prefix: jax.Array, config: KLDMCLConfig, dtype) -> jax.Array
     return jnp.where(jnp.any(ok), jnp.argmax(ok) + 1, n_max).astype(jnp.int32)
 
 
-def _safe_indices(idx: jax.Array, probs: jax.Array) -> jax.Array:
-    """Map any index of a zero-weight slot (possible only through float round-off at the
-    top of the CDF) to the last slot with positive weight, so masked slots are never drawn."""
-    last = jnp.max(jnp.where(probs > 0, jnp.arange(probs.shape[0]), 0))
-    return jnp.where(jnp.take(probs, idx) > 0, idx, last).astype(jnp.int32)
-
-
 # ---------------------------------------------------------------------------
 # host-side validation
 
@@ -366,22 +359,19 @@ def _step(
     particles = jnp.where(active[:, None], w.particles, 0.0)
 
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, w.norm.degenerate)
 
     # Candidates: N_max i.i.d. draws from the weighted set, in random order
-    # (inverse CDF of unsorted uniforms: searchsorted does not need sorted queries).
+    # (the exact inverse CDF of unsorted uniforms; masked slots have weight zero and are never drawn).
     u = jax.random.uniform(k_cand, (n_max,), dtype)
-    cand_idx = _safe_indices(resampling.inverse_cdf(u, probs), probs)
+    cand_idx = resampling.inverse_cdf(u, probs)
     k_prefix = _occupied_bins_per_prefix(jnp.take(particles, cand_idx, axis=0), config.bin_size)
     n_new = _choose_count(k_prefix, config, dtype)
     num_bins = jnp.take(k_prefix, n_new - 1)
 
     # Systematic resampling of n_new particles into slots 0..n_new-1.
-    slots = jnp.arange(n_max)
-    new_active = slots < n_new
-    u0 = jax.random.uniform(k_res, (), dtype)
-    points = jnp.where(new_active, (u0 + slots.astype(dtype)) / n_new.astype(dtype), 0.0)
-    idx = _safe_indices(resampling.inverse_cdf(points, probs), probs)
+    new_active = jnp.arange(n_max) < n_new
+    idx = resampling.resample_weights(k_res, probs, n_max, "systematic", num_active=n_new)
     new_particles = jnp.where(new_active[:, None], jnp.take(particles, idx, axis=0), 0.0)
     new_log_w = jnp.where(new_active, -jnp.log(n_new.astype(dtype)), -jnp.inf)
 

@@ -37,8 +37,8 @@ One step:
 4. **Resampling** (conditional on the ESS; every step by default, as [A]
    Alg. 5) copies every chosen particle's *whole map*: ``O(N·M)`` memory
    traffic, the cost of FastSLAM that benchmark W3 measures. Large maps are
-   copied in place (sorted ancestors of systematic/stratified resampling),
-   so a jitted ``step`` with donated state moves each map once.
+   copied in place (every resampling scheme returns sorted ancestors), so a
+   jitted ``step`` with donated state moves each map once.
 
 Observation models
 ------------------
@@ -222,9 +222,9 @@ class FastSLAMConfig:
         resampling: scheme name in :data:`jaxnav.core.resampling.SCHEMES`.
         ess_threshold: resample when ESS < ``ess_threshold · N``; 1.0 (default) every step.
         map_copy: how resampling copies the maps: "gather" (``jnp.take``), "in_place" (the
-            row-copy loop of :func:`~jaxnav.core.resampling.copy_ancestors_in_place`, sorted
-            schemes only) or "auto" (in place for rows of at least :data:`IN_PLACE_MIN_FLOATS`
-            with a sorted scheme). Use "gather" when the filter runs under ``vmap`` (batch Monte
+            row-copy loop of :func:`~jaxnav.core.resampling.copy_ancestors_in_place`, which needs
+            the sorted ancestors that every scheme returns) or "auto" (in place for rows of at least
+            :data:`IN_PLACE_MIN_FLOATS`). Use "gather" when the filter runs under ``vmap`` (batch Monte
             Carlo): the loop's trip count then differs between runs, and a batched ``while`` selects
             the whole maps on every iteration.
         parallel_slots: how many of a step's first observations of a landmark are updated at
@@ -736,7 +736,7 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
     norm = weights.normalize(state.log_weights + loglik)
     probs = jnp.exp(norm.log_weights)
     estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, norm.degenerate)
     res = resampling.conditional_resample(
         k_resample,
         poses,

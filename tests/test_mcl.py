@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav.core import weights
 from jaxnav.demo import demo_setting, run_demo
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
@@ -131,6 +132,9 @@ def test_degenerate_weights_are_reset_and_flagged_never_nan():
     final, trace = mcl.run(jax.random.PRNGKey(0), config, params, sim.controls, bad, state)
     np.testing.assert_array_equal(trace.degenerate, [False, True, False])
     assert trace.log_likelihood[1] == -np.inf
+    # ESS of a degenerate step is 0 (weights.step_ess), as weights.ess says of all −inf log-weights
+    assert float(trace.ess[1]) == 0.0 == float(weights.ess(jnp.full(4, -jnp.inf)))
+    assert np.all(np.asarray(trace.ess)[[0, 2]] >= 1.0)
     assert np.all(np.isfinite(final.particles)) and np.all(np.isfinite(trace.estimate))
 
 

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav.core import weights
 from jaxnav.models import hf_rfid
 from jaxnav.models.motion import OmniNoise
 from jaxnav.slam import pf_slam, ps_slam
@@ -115,6 +116,19 @@ def test_new_tag_is_spread_over_the_detecting_footprint_and_does_not_weight_the_
     assert int(new_state.tags.counts[6]) == 1 and int(info.num_new) == 1
     np.testing.assert_allclose(float(info.ess), config.num_particles, rtol=1e-5)
     assert int(np.sum(np.asarray(new_state.tags.counts) > 0)) == 1  # nothing else written
+
+
+def test_a_degenerate_step_reports_ess_zero_like_weights_ess():
+    """No robot particle with positive weight: the step resets to uniform, flags it, and reports ESS 0
+    (``weights.step_ess``), the value ``weights.ess`` gives the same log-weights."""
+    config = _pf()
+    params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
+    state = pf_slam.init(jax.random.PRNGKey(1), config, params, np.array([2.0, -1.0, 0.7]))
+    state = state._replace(log_weights=jnp.full_like(state.log_weights, -jnp.inf))
+    ess_of_inputs = float(weights.ess(state.log_weights))  # before the step, which donates the state
+    new_state, info = pf_slam.step(jax.random.PRNGKey(2), state, config, params, STILL, _det([(6, 2)]))
+    assert bool(info.degenerate) and float(info.ess) == 0.0 == ess_of_inputs
+    np.testing.assert_allclose(np.asarray(new_state.log_weights), -np.log(config.num_particles), rtol=1e-6)
 
 
 def test_two_readers_detecting_one_tag_update_it_once_with_both_detections():

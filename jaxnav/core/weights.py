@@ -15,6 +15,16 @@ Conventions
   as ``-inf`` (see :func:`sanitize_log_weights`). When *every* entry is
   ``-inf`` or NaN the set is *degenerate*: the weights are reset to uniform and
   the caller records the event in its step ``info``.
+
+Effective sample size of a step
+-------------------------------
+Every filter's ``info.ess`` is :func:`step_ess`: ``1 / Σ w̄_i²`` of the step's
+normalised weights, in ``[1, N]``, and **0 on a degenerate step**. A degenerate
+step's uniform weights are a reset, not N equally good particles: no particle
+explained the observation, so none counts as an effective sample (and
+:func:`ess` gives 0 for the same log-weights). Whether the step resamples is
+decided on the weights the filter carries on (the uniform ones after a reset),
+so a reset is not resampled for its ESS of 0.
 """
 
 from __future__ import annotations
@@ -46,6 +56,7 @@ __all__ = [
     "particle_mean",
     "mean_from_probabilities",
     "ess_from_probabilities",
+    "step_ess",
 ]
 
 
@@ -190,6 +201,12 @@ def mean_from_probabilities(particles: jax.Array, probs: jax.Array, angle_dims: 
 def ess_from_probabilities(probs: jax.Array) -> jax.Array:
     """ESS ``1 / Σ p²`` ([A] App. B) of normalised weights ``probs [N]`` (not logs)."""
     return 1.0 / jnp.sum(probs * probs)
+
+
+def step_ess(probs: jax.Array, degenerate: jax.Array) -> jax.Array:
+    """The ESS a filter step reports: ``1 / Σ p²`` of its normalised weights ``probs [N]``, 0 where the step
+    was ``degenerate`` (see the module docstring)."""
+    return jnp.where(degenerate, jnp.zeros((), probs.dtype), ess_from_probabilities(probs))
 
 
 def weighted_cov(

@@ -302,7 +302,7 @@ def _step(
     dtype = particles.dtype
 
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, w.norm.degenerate)
 
     log_w_avg = w.norm.log_norm
     log_w_slow = _update_average(state.log_w_slow, log_w_avg, config.alpha_slow).astype(dtype)

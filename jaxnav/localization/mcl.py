@@ -225,10 +225,11 @@ def init_uniform(key: jax.Array, config: MCLConfig, params: MCLParams, bounds: t
     if not (x1 > x0 and y1 > y0):
         raise ValueError(f"bounds must satisfy x_min < x_max and y_min < y_max, got {bounds}")
     n = config.num_particles
-    u = jax.random.uniform(key, (n, 3))
-    lo = jnp.asarray([x0, y0, -jnp.pi])
-    hi = jnp.asarray([x1, y1, jnp.pi])
-    return MCLState(lo + u * (hi - lo), _uniform(n, jnp.float32))
+    dtype = jnp.result_type(float)  # float64 under jax_enable_x64, like the particles of init
+    u = jax.random.uniform(key, (n, 3), dtype)
+    lo = jnp.asarray([x0, y0, -jnp.pi], dtype)
+    hi = jnp.asarray([x1, y1, jnp.pi], dtype)
+    return MCLState(lo + u * (hi - lo), _uniform(n, dtype))
 
 
 def _float_dtype(x: Any) -> Any:
@@ -300,7 +301,7 @@ def _step(
     particles, norm, probs, num_ignored = w.particles, w.norm, w.probs, w.num_ignored
 
     estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, norm.degenerate)
     res = resampling.conditional_resample(
         k_resample,
         particles,

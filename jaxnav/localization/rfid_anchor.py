@@ -250,7 +250,7 @@ def init(key: jax.Array, config: RFIDAnchorConfig, params: RFIDAnchorParams) -> 
     phi = params.heading_range[0] + jax.random.uniform(k2, (m, 1)) * (params.heading_range[1] - params.heading_range[0])
     off = jax.random.uniform(k3, (m, g), minval=-math.pi, maxval=math.pi)
     parts = jnp.concatenate([xyz, weights.wrap_angle(phi), off], axis=-1)
-    return RFIDAnchorState(parts, jnp.full((m,), -math.log(m), jnp.float32))
+    return RFIDAnchorState(parts, jnp.full((m,), -math.log(m), parts.dtype))
 
 
 def _angle_dims(g: int) -> tuple[int, ...]:
@@ -285,7 +285,7 @@ def _step(key, state, config, params, control, reads):
     any_read = jnp.any(reads.mask)
     threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
     res = resampling.conditional_resample(k_res, moved, norm.log_weights, threshold=threshold, normalized=True)
-    info = RFIDAnchorInfo(estimate, weights.ess_from_probabilities(probs), res.resampled,
+    info = RFIDAnchorInfo(estimate, weights.step_ess(probs, norm.degenerate), res.resampled,
                           jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate, jnp.sum(reads.mask, dtype=jnp.int32))
     return RFIDAnchorState(res.particles, res.log_weights), info
 

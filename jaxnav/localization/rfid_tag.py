@@ -242,7 +242,8 @@ def _init(key, config, params):
     if config.dims == 2:
         xyz = xyz.at[:, 2].set(params.tag_height)
     off = jax.random.uniform(k_off, (m, 1), minval=-math.pi, maxval=math.pi)
-    return RFIDTagState(jnp.concatenate([xyz, off], axis=-1), jnp.full((m,), -math.log(m), jnp.float32))
+    particles = jnp.concatenate([xyz, off], axis=-1)
+    return RFIDTagState(particles, jnp.full((m,), -math.log(m), particles.dtype))
 
 
 def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax.Array, reads: U.UHFReads) -> jax.Array:
@@ -276,11 +277,10 @@ def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, re
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
     estimate = weights.mean_from_probabilities(state.particles, probs, (_OFFSET,))
-    ess = weights.ess_from_probabilities(probs)
     any_read = jnp.any(reads.mask)
-    # the rule of resampling.conditional_resample: ESS < threshold·M, and never without a read
-    resample = any_read & (ess < config.ess_threshold * config.num_particles)
-    info = RFIDTagInfo(estimate, ess, resample, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
+    # the rule of resampling.conditional_resample: ESS < threshold·M of the weights carried on, never without a read
+    resample = any_read & (weights.ess_from_probabilities(probs) < config.ess_threshold * config.num_particles)
+    info = RFIDTagInfo(estimate, weights.step_ess(probs, norm.degenerate), resample, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
                        jnp.sum(reads.mask, dtype=jnp.int32))
     return _Weighed(norm.log_weights, probs, info)
 

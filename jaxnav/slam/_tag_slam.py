@@ -420,7 +420,7 @@ def _slot_result(key, robot, rows, config, params, control, det: hf_rfid.TagDete
     norm = weights.normalize(prior_lw + loglik)
     probs = jnp.exp(norm.log_weights)
     estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
+    ess = weights.step_ess(probs, norm.degenerate)
     res = resampling.conditional_resample(
         k_resample, poses, norm.log_weights, threshold=config.ess_threshold, scheme=config.resampling, normalized=True
     )

@@ -437,7 +437,7 @@ def import_all_jaxnav() -> None:
 
 def versions() -> dict:
     out = {"python": sys.version.split()[0]}
-    for name in ("jax", "jaxlib", "numpy", "filterpy", "particles", "numba", "matplotlib", "jaxnav"):
+    for name in ("jax", "jaxlib", "numpy", "filterpy", "particles", "numba", "blackjax", "matplotlib", "jaxnav"):
         out[name] = _version(name)
     out.update(jaxnav_source_state())
     return out
@@ -496,47 +496,62 @@ def is_peer(implementation: str) -> bool:
     return not (implementation.startswith("jaxnav") or implementation.startswith("jax-"))
 
 
+def _ratio_key(r: dict) -> tuple:
+    # Rows that name a ``scheme`` (W1: systematic, stratified, …) are compared within their scheme only.
+    return (r["workload"], json.dumps(r["size"], sort_keys=True), r.get("scheme"))
+
+
 def annotate_ratios(rows: Iterable[dict]) -> None:
     """Add ``ratio_to_fastest_peer`` and ``ratio_to_floor`` to every timed row (in place).
 
-    The fastest peer is the smallest ``median_s`` among peer rows (any mode)
-    of the same workload and size.
+    The fastest peer is the smallest ``median_s`` among peer rows (any mode,
+    any dtype) of the same workload, size and, where rows carry one, ``scheme``.
     """
     rows = list(rows)
     best: dict[tuple, float] = {}
     for r in rows:
         if r.get("median_s") is None or not is_peer(r["implementation"]):
             continue
-        key = (r["workload"], json.dumps(r["size"], sort_keys=True))
+        key = _ratio_key(r)
         best[key] = min(best.get(key, math.inf), r["median_s"])
     for r in rows:
         if r.get("median_s") is None:
             continue
-        key = (r["workload"], json.dumps(r["size"], sort_keys=True))
+        key = _ratio_key(r)
         if key in best:
             r["ratio_to_fastest_peer"] = r["median_s"] / best[key]
         if r.get("floor_s"):
             r["ratio_to_floor"] = r["median_s"] / r["floor_s"]
 
 
+def variant_label(r: dict) -> str:
+    """``"<scheme> <dtype>"`` for rows that carry a ``scheme`` (W1), else ``""``."""
+    if "scheme" not in r:
+        return ""
+    return " ".join(str(v) for v in (r.get("scheme"), r.get("dtype")) if v)
+
+
 def format_table(rows: Sequence[dict]) -> str:
-    """Compact terminal table: workload, size, implementation, mode, median, ×fastest peer, ×floor."""
-    header = ("workload", "size", "implementation", "mode", "median", "×fastest peer", "×floor")
+    """Compact terminal table: workload, size, implementation, mode, median, ×fastest peer, ×floor.
+
+    Where rows carry a ``scheme`` (W1) a ``variant`` column after ``mode`` shows it with the dtype.
+    """
+    with_variant = any("scheme" in r for r in rows)
+    header = ("workload", "size", "implementation", "mode") + (("variant",) if with_variant else ()) + (
+        "median", "×fastest peer", "×floor")
+    lead = len(header) - 3
     lines = []
     for r in rows:
+        first = (r["workload"], size_label(r["size"]), r["implementation"], r["mode"]) + (
+            (variant_label(r),) if with_variant else ())
         if r.get("median_s") is None:
-            lines.append(
-                (r["workload"], size_label(r["size"]), r["implementation"], r["mode"], "skipped", "", "")
-            )
+            lines.append(first + ("skipped", "", ""))
             continue
         rp = r.get("ratio_to_fastest_peer")
         rf = r.get("ratio_to_floor")
         lines.append(
-            (
-                r["workload"],
-                size_label(r["size"]),
-                r["implementation"],
-                r["mode"],
+            first
+            + (
                 fmt_time(r["median_s"]),
                 f"{rp:.3g}" if rp is not None else "",
                 f"{rf:.3g}" if rf is not None else "",
@@ -550,8 +565,10 @@ def format_table(rows: Sequence[dict]) -> str:
         if prev is not None and (l[0], l[1]) != prev:
             out.append("")
         prev = (l[0], l[1])
-        out.append("  ".join(c.ljust(w) if i < 4 else c.rjust(w) for i, (c, w) in enumerate(zip(l, widths))))
+        out.append("  ".join(c.ljust(w) if i < lead else c.rjust(w) for i, (c, w) in enumerate(zip(l, widths))))
     skipped = [r for r in rows if r.get("median_s") is None]
     for r in skipped:
-        out.append(f"  skipped: {r['workload']} {size_label(r['size'])} {r['implementation']} {r['mode']}: {r.get('skipped')}")
+        variant = variant_label(r)
+        out.append(f"  skipped: {r['workload']} {size_label(r['size'])} {r['implementation']} {r['mode']}"
+                   f"{' ' + variant if variant else ''}: {r.get('skipped')}")
     return "\n".join(out)

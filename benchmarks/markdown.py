@@ -2,9 +2,12 @@
 
 ``python -m benchmarks.markdown [benchmarks/results/latest.json]``
 
-One table per workload: a row per size, a column per implementation and mode
-(median seconds per call or per step), then jaxnav's best time over the
-fastest peer's and over the memory floor.
+One table per workload (per workload and scheme where rows carry a ``scheme``,
+as W1's do): a row per size, a column per implementation and mode (and dtype
+where an implementation was timed in several), median seconds per call or per
+step, then jaxnav's best time over the fastest peer's and over the memory
+floor (each jaxnav row over the floor of its own dtype). Rows that were not
+measured are listed after the tables with their reason.
 """
 
 from __future__ import annotations
@@ -13,6 +16,58 @@ import json
 import sys
 
 from benchmarks.harness import annotate_ratios, fmt_time, is_peer, size_label
+
+
+def _table(title: str, wrows: list[dict]) -> list[str]:
+    """One Markdown table: a row per size, a column per implementation and mode (and dtype, where one
+    implementation and mode was timed in several dtypes), then the floor and jaxnav's ratios."""
+    out = []
+    dtypes: dict[tuple, set] = {}
+    for r in wrows:
+        dtypes.setdefault((r["implementation"], r["mode"]), set()).add(r.get("dtype"))
+    with_dtype = any(len(d) > 1 for d in dtypes.values())
+
+    def column(r):
+        return (r["implementation"], r["mode"]) + ((r.get("dtype"),) if with_dtype else ())
+
+    columns = []
+    for r in wrows:
+        if column(r) not in columns:
+            columns.append(column(r))
+    sizes = []
+    for r in wrows:
+        if r["size"] not in sizes:
+            sizes.append(r["size"])
+    head = ["size"] + [f"{c[0]} ({', '.join(str(v) for v in c[1:] if v)})" for c in columns] + [
+        "floor", "jaxnav best / fastest peer", "jaxnav best / floor"]
+    out.append(f"\n**{title}** (median time per call or step)\n")
+    out.append("| " + " | ".join(head) + " |")
+    out.append("|" + "---|" * len(head))
+    for size in sizes:
+        srows = [r for r in wrows if r["size"] == size]
+        cells = [size_label(size)]
+        for c in columns:
+            hit = [r for r in srows if column(r) == c]
+            cells.append(fmt_time(hit[0]["median_s"]) if hit else "")
+        floors: dict = {}
+        for r in srows:
+            if r.get("floor_s"):
+                floors.setdefault(r.get("dtype") if with_dtype else None, r["floor_s"])
+        if len(set(floors.values())) > 1:  # floors that depend on the dtype (W1): one per dtype
+            cells.append(", ".join(f"{fmt_time(f)} ({dt})" for dt, f in sorted(floors.items(), key=lambda kv: str(kv[0]))))
+        else:
+            cells.append(fmt_time(next(iter(floors.values()))) if floors else "")
+        ours = [r for r in srows if r["implementation"] == "jaxnav"]
+        peers = [r for r in srows if is_peer(r["implementation"])]
+        if ours and peers:
+            best = min(r["median_s"] for r in ours)
+            cells.append(f"{best / min(r['median_s'] for r in peers):.2f}")
+            to_floor = [r["median_s"] / r["floor_s"] for r in ours if r.get("floor_s")]  # each row over its own floor
+            cells.append(f"{min(to_floor):.0f}" if to_floor else "")
+        else:
+            cells += ["", ""]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
 
 
 def tables(payload: dict) -> str:
@@ -27,36 +82,20 @@ def tables(payload: dict) -> str:
     )
     for workload in sorted({r["workload"] for r in rows}):
         wrows = [r for r in rows if r["workload"] == workload]
-        columns = []
+        schemes = []
         for r in wrows:
-            col = (r["implementation"], r["mode"])
-            if col not in columns:
-                columns.append(col)
-        sizes = []
-        for r in wrows:
-            if r["size"] not in sizes:
-                sizes.append(r["size"])
-        head = ["size"] + [f"{impl} ({mode})" for impl, mode in columns] + ["floor", "jaxnav best / fastest peer", "jaxnav best / floor"]
-        out.append(f"\n**{workload}** (median time per call or step)\n")
-        out.append("| " + " | ".join(head) + " |")
-        out.append("|" + "---|" * len(head))
-        for size in sizes:
-            srows = [r for r in wrows if r["size"] == size]
-            cells = [size_label(size)]
-            for impl, mode in columns:
-                hit = [r for r in srows if (r["implementation"], r["mode"]) == (impl, mode)]
-                cells.append(fmt_time(hit[0]["median_s"]) if hit else "")
-            floor = next((r["floor_s"] for r in srows if r.get("floor_s")), None)
-            cells.append(fmt_time(floor) if floor else "")
-            ours = [r for r in srows if r["implementation"] == "jaxnav"]
-            peers = [r for r in srows if is_peer(r["implementation"])]
-            if ours and peers:
-                best = min(r["median_s"] for r in ours)
-                cells.append(f"{best / min(r['median_s'] for r in peers):.2f}")
-                cells.append(f"{best / floor:.0f}" if floor else "")
-            else:
-                cells += ["", ""]
-            out.append("| " + " | ".join(cells) + " |")
+            if r.get("scheme") not in schemes:
+                schemes.append(r.get("scheme"))
+        for scheme in schemes:  # rows that name a scheme (W1) get one table per scheme
+            title = workload if scheme is None else f"{workload} {scheme}"
+            out += _table(title, [r for r in wrows if r.get("scheme") == scheme])
+    skipped = [r for r in payload["rows"] if r.get("median_s") is None and r.get("skipped")]
+    if skipped:
+        out.append("\nNot measured:\n")
+        for r in skipped:
+            variant = " ".join(str(r[k]) for k in ("scheme", "dtype") if r.get(k) and "scheme" in r)
+            out.append(f"* {r['workload']} {size_label(r['size'])} {r['implementation']} ({r['mode']}"
+                       f"{', ' + variant if variant else ''}): {r['skipped']}")
     return "\n".join(out)
 
 

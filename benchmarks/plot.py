@@ -5,11 +5,12 @@ the memory floor as a dashed black line. Saved beside the JSON file.
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections import defaultdict
 from typing import Sequence
 
-__all__ = ["plot_workload", "plot_all", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
+__all__ = ["plot_workload", "plot_all", "plot_w1", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
 
 _STYLE = {
     # implementation -> (colour, marker)
@@ -19,6 +20,7 @@ _STYLE = {
     "numpy": ("tab:orange", "s"),
     "filterpy": ("tab:red", "D"),
     "particles": ("tab:green", "v"),
+    "blackjax": ("tab:brown", "P"),
 }
 
 
@@ -62,6 +64,83 @@ def plot_workload(name: str, title: str, rows: Sequence[dict], x_key: str, path:
     ax.grid(True, which="minor", alpha=0.12)
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------------------
+# W1: one panel per resampling scheme
+
+_W1_SCHEMES = ("systematic", "stratified", "multinomial", "residual")
+_DTYPE_FLOOR_STYLE = {"float32": ("k", "--"), "float64": ("0.45", "--")}
+
+
+def plot_w1(rows: Sequence[dict], path: str, title: str = "W1", subtitle: str = "") -> str | None:
+    """W1: a log-log panel per scheme, time per resampling against N; a line per implementation, mode and
+    dtype (colour: implementation; solid: in_scan, dotted: per_call; filled markers: float32, open: float64),
+    the memory floor of each dtype dashed. One legend for all panels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    rows = [r for r in rows if r["workload"] == "W1" and r.get("median_s") is not None and "N" in r["size"]]
+    if not rows:
+        return None
+    schemes = [s for s in _W1_SCHEMES if any(r.get("scheme", "systematic") == s for r in rows)]
+    schemes += sorted({r["scheme"] for r in rows if r.get("scheme") and r["scheme"] not in schemes})
+    ncols = 2 if len(schemes) > 1 else 1
+    nrows = math.ceil(len(schemes) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(6.2 * ncols, 4.6 * nrows + 1.4), dpi=110, squeeze=False,
+                             sharex=True, sharey=True)
+    handles: dict[str, Line2D] = {}
+    for ax, scheme in zip(axes.flat, schemes):
+        sel = [r for r in rows if r.get("scheme", "systematic") == scheme]
+        series: dict[tuple, list[tuple[float, float]]] = defaultdict(list)
+        floors: dict[str, dict[float, float]] = defaultdict(dict)
+        for r in sel:
+            dtype = str(r.get("dtype", "float32")).split()[0]
+            x = float(r["size"]["N"])
+            series[(r["implementation"], r["mode"], dtype)].append((x, r["median_s"]))
+            if r.get("floor_s"):
+                floors[dtype][x] = r["floor_s"]
+        order = ["jaxnav", "blackjax", "numpy", "particles", "filterpy"]
+        for key in sorted(series, key=lambda k: (order.index(k[0]) if k[0] in order else 99, k)):
+            impl, mode, dtype = key
+            pts = sorted(series[key])
+            colour, marker = _STYLE.get(impl, (None, "x"))
+            label = f"{impl} ({mode}, {dtype})"
+            (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
+                              markerfacecolor=colour if dtype != "float64" else "white",
+                              linestyle="-" if mode == "in_scan" else ":", linewidth=1.5, markersize=5, label=label)
+            handles.setdefault(label, line)
+        for dtype in sorted(floors):
+            fx = sorted(floors[dtype])
+            colour, style = _DTYPE_FLOOR_STYLE.get(dtype, ("k", "--"))
+            label = f"memory floor, {dtype} weights"
+            (line,) = ax.plot(fx, [floors[dtype][x] for x in fx], color=colour, linestyle=style, linewidth=1.1,
+                              label=label)
+            handles.setdefault(label, line)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(scheme, fontsize=10)
+        ax.grid(True, which="major", alpha=0.4)
+        ax.grid(True, which="minor", alpha=0.12)
+        ax.tick_params(labelbottom=True, labelleft=True)
+        ax.set_xlabel("particles N")
+        ax.set_ylabel("median time per resampling (s)")
+    for ax in list(axes.flat)[len(schemes):]:
+        ax.set_visible(False)
+    import textwrap
+
+    fig.suptitle("\n".join(textwrap.wrap(title, 60 * ncols)) + (f"\n{subtitle}" if subtitle else ""), fontsize=10)
+    legend_cols = 2 * ncols
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=legend_cols, fontsize=8, frameon=False)
+    legend_rows = math.ceil(len(handles) / legend_cols)
+    fig.tight_layout(rect=(0, min(0.4, (0.2 + 0.16 * legend_rows) / fig.get_figheight()), 1, 1))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
@@ -287,7 +366,7 @@ def plot_u1(rows: Sequence[dict], path: str, title: str = "U1", subtitle: str = 
     return _save(fig, path)
 
 
-_CUSTOM = {"S1": plot_s1, "S2": plot_s2, "W5": plot_w5, "U1": plot_u1}
+_CUSTOM = {"W1": plot_w1, "S1": plot_s1, "S2": plot_s2, "W5": plot_w5, "U1": plot_u1}
 
 
 def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:

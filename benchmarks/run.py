@@ -105,7 +105,8 @@ def main(argv=None) -> int:
                 ctx.note(f"{name} {label}: some timings may be disturbed (up to {worst:.2f} cores used by other processes)")
             for r in new:
                 status = harness.fmt_time(r["median_s"]) if r.get("median_s") is not None else f"skipped ({r.get('skipped')})"
-                print(f"    {r['implementation']:<15} {r['mode']:<9} {status}", flush=True)
+                variant = harness.variant_label(r)
+                print(f"    {r['implementation']:<15} {r['mode']:<9} {variant + ' ' if variant else ''}{status}", flush=True)
             busy = "" if load is None else f", other processes {load:.2f} cores"
             print(f"    ({time.perf_counter() - t0:.1f} s{busy})", flush=True)
             rows.extend(new)

@@ -30,7 +30,6 @@ from jaxnav.core import fastmath
 __all__ = [
     "U64",
     "constant",
-    "from_u32",
     "add",
     "sub",
     "add_u32",
@@ -64,12 +63,6 @@ def constant(value: int, shape: tuple[int, ...] = ()) -> U64:
     if not 0 <= value < 2**64:
         raise ValueError(f"a U64 holds integers in [0, 2**64), got {value}")
     return U64(jnp.full(shape, value >> 32, _U32), jnp.full(shape, value & 0xFFFFFFFF, _U32))
-
-
-def from_u32(x: jax.Array) -> U64:
-    """A ``uint32`` array as a :class:`U64` (high word zero)."""
-    x = jnp.asarray(x).astype(_U32)
-    return U64(jnp.zeros_like(x), x)
 
 
 def add(a: U64, b: U64) -> U64:

@@ -32,8 +32,9 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class Timing:
     repeats: int
 
     @staticmethod
-    def from_samples(samples: Sequence[float]) -> "Timing":
+    def from_samples(samples: Sequence[float]) -> Timing:
         if not samples:
             raise ValueError("no timing samples")
         return Timing(float(statistics.median(samples)), float(min(samples)), len(samples))
@@ -176,8 +177,9 @@ def skipped_row(workload: str, implementation: str, size: dict, mode: str, reaso
     return row
 
 
-def guarded(ctx: "Context", workload: str, implementation: str, size: dict, mode: str,
-            fn: Callable[[], Any]) -> list[dict]:
+def guarded(
+    ctx: Context, workload: str, implementation: str, size: dict, mode: str, fn: Callable[[], Any]
+) -> list[dict]:
     """Measure one implementation: ``fn()`` (a row or a list of rows), guarded and monitored.
 
     * An exception becomes one skipped row carrying the error: one
@@ -212,8 +214,10 @@ def guarded(ctx: "Context", workload: str, implementation: str, size: dict, mode
         if failed or load is None or load <= ctx.disturbed:
             break
         last = attempt == ctx.retries
-        ctx.note(f"{workload} {size_label(size)} {implementation} {mode}: other processes kept {load:.2f} cores busy "
-                 f"(attempt {attempt + 1}); " + ("kept the least disturbed attempt" if last else "measuring again"))
+        ctx.note(
+            f"{workload} {size_label(size)} {implementation} {mode}: other processes kept {load:.2f} cores busy "
+            f"(attempt {attempt + 1}); " + ("kept the least disturbed attempt" if last else "measuring again")
+        )
     return best[0]
 
 
@@ -537,13 +541,17 @@ def format_table(rows: Sequence[dict]) -> str:
     Where rows carry a ``scheme`` (W1) a ``variant`` column after ``mode`` shows it with the dtype.
     """
     with_variant = any("scheme" in r for r in rows)
-    header = ("workload", "size", "implementation", "mode") + (("variant",) if with_variant else ()) + (
-        "median", "×fastest peer", "×floor")
+    header = (
+        ("workload", "size", "implementation", "mode")
+        + (("variant",) if with_variant else ())
+        + ("median", "×fastest peer", "×floor")
+    )
     lead = len(header) - 3
     lines = []
     for r in rows:
         first = (r["workload"], size_label(r["size"]), r["implementation"], r["mode"]) + (
-            (variant_label(r),) if with_variant else ())
+            (variant_label(r),) if with_variant else ()
+        )
         if r.get("median_s") is None:
             lines.append(first + ("skipped", "", ""))
             continue
@@ -569,6 +577,8 @@ def format_table(rows: Sequence[dict]) -> str:
     skipped = [r for r in rows if r.get("median_s") is None]
     for r in skipped:
         variant = variant_label(r)
-        out.append(f"  skipped: {r['workload']} {size_label(r['size'])} {r['implementation']} {r['mode']}"
-                   f"{' ' + variant if variant else ''}: {r.get('skipped')}")
+        out.append(
+            f"  skipped: {r['workload']} {size_label(r['size'])} {r['implementation']} {r['mode']}"
+            f"{' ' + variant if variant else ''}: {r.get('skipped')}"
+        )
     return "\n".join(out)

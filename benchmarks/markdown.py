@@ -38,8 +38,11 @@ def _table(title: str, wrows: list[dict]) -> list[str]:
     for r in wrows:
         if r["size"] not in sizes:
             sizes.append(r["size"])
-    head = ["size"] + [f"{c[0]} ({', '.join(str(v) for v in c[1:] if v)})" for c in columns] + [
-        "floor", "jaxnav best / fastest peer", "jaxnav best / floor"]
+    head = (
+        ["size"]
+        + [f"{c[0]} ({', '.join(str(v) for v in c[1:] if v)})" for c in columns]
+        + ["floor", "jaxnav best / fastest peer", "jaxnav best / floor"]
+    )
     out.append(f"\n**{title}** (median time per call or step)\n")
     out.append("| " + " | ".join(head) + " |")
     out.append("|" + "---|" * len(head))
@@ -54,7 +57,9 @@ def _table(title: str, wrows: list[dict]) -> list[str]:
             if r.get("floor_s"):
                 floors.setdefault(r.get("dtype") if with_dtype else None, r["floor_s"])
         if len(set(floors.values())) > 1:  # floors that depend on the dtype (W1): one per dtype
-            cells.append(", ".join(f"{fmt_time(f)} ({dt})" for dt, f in sorted(floors.items(), key=lambda kv: str(kv[0]))))
+            cells.append(
+                ", ".join(f"{fmt_time(f)} ({dt})" for dt, f in sorted(floors.items(), key=lambda kv: str(kv[0])))
+            )
         else:
             cells.append(fmt_time(next(iter(floors.values()))) if floors else "")
         ours = [r for r in srows if r["implementation"] == "jaxnav"]
@@ -94,8 +99,10 @@ def tables(payload: dict) -> str:
         out.append("\nNot measured:\n")
         for r in skipped:
             variant = " ".join(str(r[k]) for k in ("scheme", "dtype") if r.get(k) and "scheme" in r)
-            out.append(f"* {r['workload']} {size_label(r['size'])} {r['implementation']} ({r['mode']}"
-                       f"{', ' + variant if variant else ''}): {r['skipped']}")
+            out.append(
+                f"* {r['workload']} {size_label(r['size'])} {r['implementation']} ({r['mode']}"
+                f"{', ' + variant if variant else ''}): {r['skipped']}"
+            )
     return "\n".join(out)
 
 

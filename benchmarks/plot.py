@@ -8,7 +8,7 @@ import json
 import math
 import os
 from collections import defaultdict
-from typing import Sequence
+from collections.abc import Sequence
 
 __all__ = ["plot_workload", "plot_all", "plot_w1", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
 
@@ -24,8 +24,15 @@ _STYLE = {
 }
 
 
-def plot_workload(name: str, title: str, rows: Sequence[dict], x_key: str, path: str,
-                  series_key: str | None = None, subtitle: str = "") -> str | None:
+def plot_workload(
+    name: str,
+    title: str,
+    rows: Sequence[dict],
+    x_key: str,
+    path: str,
+    series_key: str | None = None,
+    subtitle: str = "",
+) -> str | None:
     """Draw workload ``name``'s rows to ``path``; returns the path, or None if nothing was timed."""
     import matplotlib
 
@@ -50,8 +57,16 @@ def plot_workload(name: str, title: str, rows: Sequence[dict], x_key: str, path:
         impl, mode = key[0], key[1]
         colour, marker = _STYLE.get(impl, (None, "x"))
         label = f"{impl} ({mode})" + (f" [{key[2]}]" if len(key) > 2 else "")
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
-                linestyle="-" if mode == "in_scan" else ":", linewidth=1.6, markersize=5, label=label)
+        ax.plot(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            marker=marker,
+            color=colour,
+            linestyle="-" if mode == "in_scan" else ":",
+            linewidth=1.6,
+            markersize=5,
+            label=label,
+        )
     if floors:
         fx = sorted(floors)
         ax.plot(fx, [floors[x] for x in fx], "k--", linewidth=1.2, label="memory floor")
@@ -94,8 +109,9 @@ def plot_w1(rows: Sequence[dict], path: str, title: str = "W1", subtitle: str = 
     schemes += sorted({r["scheme"] for r in rows if r.get("scheme") and r["scheme"] not in schemes})
     ncols = 2 if len(schemes) > 1 else 1
     nrows = math.ceil(len(schemes) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(6.2 * ncols, 4.6 * nrows + 1.4), dpi=110, squeeze=False,
-                             sharex=True, sharey=True)
+    fig, axes = plt.subplots(
+        nrows, ncols, figsize=(6.2 * ncols, 4.6 * nrows + 1.4), dpi=110, squeeze=False, sharex=True, sharey=True
+    )
     handles: dict[str, Line2D] = {}
     for ax, scheme in zip(axes.flat, schemes):
         sel = [r for r in rows if r.get("scheme", "systematic") == scheme]
@@ -113,16 +129,25 @@ def plot_w1(rows: Sequence[dict], path: str, title: str = "W1", subtitle: str = 
             pts = sorted(series[key])
             colour, marker = _STYLE.get(impl, (None, "x"))
             label = f"{impl} ({mode}, {dtype})"
-            (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
-                              markerfacecolor=colour if dtype != "float64" else "white",
-                              linestyle="-" if mode == "in_scan" else ":", linewidth=1.5, markersize=5, label=label)
+            (line,) = ax.plot(
+                [p[0] for p in pts],
+                [p[1] for p in pts],
+                marker=marker,
+                color=colour,
+                markerfacecolor=colour if dtype != "float64" else "white",
+                linestyle="-" if mode == "in_scan" else ":",
+                linewidth=1.5,
+                markersize=5,
+                label=label,
+            )
             handles.setdefault(label, line)
         for dtype in sorted(floors):
             fx = sorted(floors[dtype])
             colour, style = _DTYPE_FLOOR_STYLE.get(dtype, ("k", "--"))
             label = f"memory floor, {dtype} weights"
-            (line,) = ax.plot(fx, [floors[dtype][x] for x in fx], color=colour, linestyle=style, linewidth=1.1,
-                              label=label)
+            (line,) = ax.plot(
+                fx, [floors[dtype][x] for x in fx], color=colour, linestyle=style, linewidth=1.1, label=label
+            )
             handles.setdefault(label, line)
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -132,7 +157,7 @@ def plot_w1(rows: Sequence[dict], path: str, title: str = "W1", subtitle: str = 
         ax.tick_params(labelbottom=True, labelleft=True)
         ax.set_xlabel("particles N")
         ax.set_ylabel("median time per resampling (s)")
-    for ax in list(axes.flat)[len(schemes):]:
+    for ax in list(axes.flat)[len(schemes) :]:
         ax.set_visible(False)
     import textwrap
 
@@ -173,8 +198,16 @@ def _method_lines(ax, rows: Sequence[dict], x_key: str, label_extra=None) -> Non
         pts = sorted(series[key])
         colour, marker = _METHOD_STYLE.get(key[0], (None, "x"))
         label = f"{key[0]} ({key[1]})" + (label_extra(key, pts) if label_extra else "")
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
-                linestyle=_MODE_LINE.get(key[1], "--"), linewidth=1.6, markersize=5, label=label)
+        ax.plot(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            marker=marker,
+            color=colour,
+            linestyle=_MODE_LINE.get(key[1], "--"),
+            linewidth=1.6,
+            markersize=5,
+            label=label,
+        )
 
 
 def _title(title: str, subtitle: str) -> str:
@@ -222,8 +255,10 @@ def plot_s1(rows: Sequence[dict], path: str, title: str = "S1", subtitle: str = 
         r0 = sel[0]
         desc = ""
         if "density_tags_per_m2" in r0:
-            desc = (f": {r0['density_tags_per_m2']:g} tags/m², {1000 * r0['reader_side_m']:g} mm readers, "
-                    f"{r0['size']['tags']} tags")
+            desc = (
+                f": {r0['density_tags_per_m2']:g} tags/m², {1000 * r0['reader_side_m']:g} mm readers, "
+                f"{r0['size']['tags']} tags"
+            )
         ax.set_title(f"{name}{desc}", fontsize=10)
         ax.set_yscale("log")
         _plain_log_ticks(ax, "y")
@@ -318,16 +353,30 @@ def plot_u1(rows: Sequence[dict], path: str, title: str = "U1", subtitle: str = 
     for key in sorted(series, key=lambda k: (not k[0].startswith("jax"), k)):
         pts = sorted(series[key])
         colour, marker = _STYLE.get(key[0], (None, "x"))
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=marker, color=colour,
-                linestyle="-" if key[1] == "in_scan" else ":", linewidth=1.6, markersize=5, label=f"{key[0]} ({key[1]})")
+        ax.plot(
+            [p[0] for p in pts],
+            [p[1] for p in pts],
+            marker=marker,
+            color=colour,
+            linestyle="-" if key[1] == "in_scan" else ":",
+            linewidth=1.6,
+            markersize=5,
+            label=f"{key[0]} ({key[1]})",
+        )
     if floors:
         fx = sorted(floors)
         ax.plot(fx, [floors[x] for x in fx], "k--", linewidth=1.2, label="memory floor")
     ours = dict(series.get(("jaxnav", "in_scan"), []))
     for x, y in series.get(("numpy", "per_call"), []):
         if x in ours:
-            ax.annotate(f"numpy / jaxnav = {y / ours[x]:.2f}", (x, y), textcoords="offset points", xytext=(6, -12),
-                        fontsize=8, color="tab:orange")
+            ax.annotate(
+                f"numpy / jaxnav = {y / ours[x]:.2f}",
+                (x, y),
+                textcoords="offset points",
+                xytext=(6, -12),
+                fontsize=8,
+                color="tab:orange",
+            )
     ax.set_xscale("log")
     ax.set_yscale("log")
     _plain_log_ticks(ax, "y")
@@ -351,8 +400,14 @@ def plot_u1(rows: Sequence[dict], path: str, title: str = "U1", subtitle: str = 
         n_tag = by_tags[0]["size"]["N"]
         single = [r for r in by_n if r["implementation"] == "jaxnav" and r["size"]["N"] == n_tag]
         if single:
-            ax.plot([1], [1e3 * single[0]["median_s"]], "D", color="tab:cyan", markersize=6,
-                    label="jaxnav run, one tag, no vmap (in_scan)")
+            ax.plot(
+                [1],
+                [1e3 * single[0]["median_s"]],
+                "D",
+                color="tab:cyan",
+                markersize=6,
+                label="jaxnav run, one tag, no vmap (in_scan)",
+            )
         ax.set_title(f"N = {n_tag:g} particles per tag: time per update of all tags", fontsize=10)
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -373,7 +428,9 @@ def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:
     """One PNG per workload in ``payload['rows']``, named ``<json stem>_<workload>.png``."""
     stem = os.path.splitext(os.path.abspath(json_path))[0]
     m = payload.get("machine", {})
-    subtitle = f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, copy bandwidth {m.get('bandwidth_GB_per_s', 0):.1f} GB/s"
+    subtitle = (
+        f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, copy bandwidth {m.get('bandwidth_GB_per_s', 0):.1f} GB/s"
+    )
     out = []
     names = sorted({r["workload"] for r in payload["rows"]})
     for name in names:
@@ -385,8 +442,15 @@ def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:
             if p:
                 out.append(p)
             continue
-        p = plot_workload(name, title, payload["rows"], x_key, f"{stem}_{name}.png",
-                          series_key=getattr(wl, "series_key", None), subtitle=subtitle)
+        p = plot_workload(
+            name,
+            title,
+            payload["rows"],
+            x_key,
+            f"{stem}_{name}.png",
+            series_key=getattr(wl, "series_key", None),
+            subtitle=subtitle,
+        )
         if p:
             out.append(p)
     return out

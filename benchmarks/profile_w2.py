@@ -42,7 +42,6 @@ import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from benchmarks.harness import fmt_time, time_calls
 
@@ -50,16 +49,18 @@ S = 20
 
 
 def _parts(n: int):
+    from benchmarks.workloads.w2_mcl import INIT_SD, START, _world
     from jaxnav.core import resampling, weights
     from jaxnav.localization import mcl
     from jaxnav.models import landmarks as lm
     from jaxnav.models.motion import velocity_sample
-    from benchmarks.workloads.w2_mcl import INIT_SD, START, _world
 
     landmarks, motion_noise, sensor_noise, sim = _world()
     config = mcl.MCLConfig(num_particles=n, motion_model="velocity", resampling="systematic", ess_threshold=1.0)
     params = mcl.MCLParams(motion_noise, sensor_noise, landmarks)
-    state = mcl.init(jax.random.key(1), config, params, jnp.asarray(START, jnp.float32), jnp.asarray(INIT_SD, jnp.float32))
+    state = mcl.init(
+        jax.random.key(1), config, params, jnp.asarray(START, jnp.float32), jnp.asarray(INIT_SD, jnp.float32)
+    )
     ctrl = sim.controls[0]
     obs = jax.tree_util.tree_map(lambda a: a[0], sim.observations)
     x = state.particles
@@ -81,7 +82,8 @@ def _parts(n: int):
         "step": lambda k, x, lw, idx: mcl._step(k, mcl.MCLState(x, lw), config, params, ctrl, obs)[0].particles,
         "normal_threefry": lambda k, x, lw, idx: jax.random.normal(k, x.shape, x.dtype),
         "normal_rbg": lambda k, x, lw, idx: jax.random.normal(
-            jax.random.key(jax.random.bits(k, (), jnp.uint32), impl="rbg"), x.shape, x.dtype),
+            jax.random.key(jax.random.bits(k, (), jnp.uint32), impl="rbg"), x.shape, x.dtype
+        ),
     }
     return parts, (x, lw, idx)
 
@@ -98,8 +100,9 @@ def profile(n: int, repeats: int) -> dict:
         per_call = jax.jit(f)
         keys = iter(list(jax.random.split(jax.random.key(7), repeats + 4)))
         jax.block_until_ready(per_call(next(keys), x, lw, idx))
-        t_call = time_calls(lambda: jax.block_until_ready(per_call(next(keys), x, lw, idx)), repeats=repeats,
-                            warmup=1, budget_s=10.0)
+        t_call = time_calls(
+            lambda: jax.block_until_ready(per_call(next(keys), x, lw, idx)), repeats=repeats, warmup=1, budget_s=10.0
+        )
 
         def scanned(key, xs_x, xs_lw):
             def body(c, inp):
@@ -115,8 +118,12 @@ def profile(n: int, repeats: int) -> dict:
         xs_x = jax.block_until_ready(x[None] + eps)
         xs_lw = jax.block_until_ready(lw[None] + eps[:, :, 0])
         jax.block_until_ready(g(jax.random.key(8), xs_x, xs_lw))
-        t_scan = time_calls(lambda: jax.block_until_ready(g(jax.random.key(8), xs_x, xs_lw)),
-                            repeats=max(3, repeats // 5), warmup=0, budget_s=20.0)
+        t_scan = time_calls(
+            lambda: jax.block_until_ready(g(jax.random.key(8), xs_x, xs_lw)),
+            repeats=max(3, repeats // 5),
+            warmup=0,
+            budget_s=20.0,
+        )
         out[name] = {"per_call_s": t_call.median_s, "in_scan_s": t_scan.median_s / S}
         del xs_x, xs_lw
     return out

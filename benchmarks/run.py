@@ -31,14 +31,27 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--only", default=None, help="comma-separated workload names, e.g. W1,W2 (default: all)")
     p.add_argument("--quick", action="store_true", help="the two smallest sizes of each workload")
     p.add_argument("--out", default=DEFAULT_OUT, help="JSON output file (plots go beside it)")
-    p.add_argument("--repeats", type=int, default=None,
-                   help="timed repeats (or passes of a trajectory) per measurement; default per workload")
+    p.add_argument(
+        "--repeats",
+        type=int,
+        default=None,
+        help="timed repeats (or passes of a trajectory) per measurement; default per workload",
+    )
     p.add_argument("--no-plot", action="store_true", help="skip the PNGs")
-    p.add_argument("--wait-quiet", type=float, default=0.0, metavar="SECONDS",
-                   help="before each size, wait up to SECONDS for other processes to leave the CPUs idle")
-    p.add_argument("--retries", type=int, default=1,
-                   help="re-measure an implementation this many times when other processes used > 0.2 cores "
-                        "during it (after waiting for a quiet machine; keeps the least disturbed attempt; default 1)")
+    p.add_argument(
+        "--wait-quiet",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="before each size, wait up to SECONDS for other processes to leave the CPUs idle",
+    )
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        help="re-measure an implementation this many times when other processes used > 0.2 cores "
+        "during it (after waiting for a quiet machine; keeps the least disturbed attempt; default 1)",
+    )
     return p.parse_args(argv)
 
 
@@ -66,8 +79,13 @@ def main(argv=None) -> int:
     vers = harness.versions()
     print(f"{machine['cpu']}, {machine['cores']} cores, copy bandwidth {bw['bandwidth_GB_per_s']:.2f} GB/s", flush=True)
     print("versions: " + ", ".join(f"{k} {v}" for k, v in vers.items()), flush=True)
-    ctx = Context(quick=args.quick, repeats=args.repeats, bandwidth=bw["bandwidth_bytes_per_s"],
-                  retries=args.retries, disturbed=DISTURBED)
+    ctx = Context(
+        quick=args.quick,
+        repeats=args.repeats,
+        bandwidth=bw["bandwidth_bytes_per_s"],
+        retries=args.retries,
+        disturbed=DISTURBED,
+    )
 
     rows: list[dict] = []
 
@@ -75,8 +93,12 @@ def main(argv=None) -> int:
         return {
             "machine": machine,
             "versions": vers,
-            "options": {"only": args.only, "quick": args.quick, "repeats": args.repeats,
-                        "command": " ".join([os.path.basename(sys.executable), "-m", "benchmarks.run"] + sys.argv[1:])},
+            "options": {
+                "only": args.only,
+                "quick": args.quick,
+                "repeats": args.repeats,
+                "command": " ".join([os.path.basename(sys.executable), "-m", "benchmarks.run"] + sys.argv[1:]),
+            },
             "workloads": {n: {"title": w.title, "floor": w.floor_doc} for n, w in selected.items()},
             "notes": ctx.notes,
             "complete": complete,
@@ -102,11 +124,20 @@ def main(argv=None) -> int:
                 r.setdefault("other_load_cores", load)
             worst = max((r["other_load_cores"] for r in new if r.get("other_load_cores") is not None), default=None)
             if worst is not None and worst > ctx.disturbed:
-                ctx.note(f"{name} {label}: some timings may be disturbed (up to {worst:.2f} cores used by other processes)")
+                ctx.note(
+                    f"{name} {label}: some timings may be disturbed (up to {worst:.2f} cores used by other processes)"
+                )
             for r in new:
-                status = harness.fmt_time(r["median_s"]) if r.get("median_s") is not None else f"skipped ({r.get('skipped')})"
+                status = (
+                    harness.fmt_time(r["median_s"])
+                    if r.get("median_s") is not None
+                    else f"skipped ({r.get('skipped')})"
+                )
                 variant = harness.variant_label(r)
-                print(f"    {r['implementation']:<15} {r['mode']:<9} {variant + ' ' if variant else ''}{status}", flush=True)
+                print(
+                    f"    {r['implementation']:<15} {r['mode']:<9} {variant + ' ' if variant else ''}{status}",
+                    flush=True,
+                )
             busy = "" if load is None else f", other processes {load:.2f} cores"
             print(f"    ({time.perf_counter() - t0:.1f} s{busy})", flush=True)
             rows.extend(new)
@@ -119,9 +150,11 @@ def main(argv=None) -> int:
 
     src_end = harness.jaxnav_source_state()
     if (src_end["jaxnav_git"], src_end["jaxnav_dirty"]) != (vers["jaxnav_git"], vers["jaxnav_dirty"]):
-        ctx.note(f"jaxnav source changed during the run (start {vers['jaxnav_git']} dirty={vers['jaxnav_dirty']}, "
-                 f"end {src_end['jaxnav_git']} dirty={src_end['jaxnav_dirty']}); all modules were imported at the "
-                 "start, so the rows time the start version")
+        ctx.note(
+            f"jaxnav source changed during the run (start {vers['jaxnav_git']} dirty={vers['jaxnav_dirty']}, "
+            f"end {src_end['jaxnav_git']} dirty={src_end['jaxnav_dirty']}); all modules were imported at the "
+            "start, so the rows time the start version"
+        )
     if vers.get("jaxnav_dirty"):
         ctx.note("jaxnav/ had uncommitted changes when the run started")
     harness.annotate_ratios(rows)

@@ -8,5 +8,25 @@ known map), :mod:`jaxnav.slam` (EKF-SLAM, FastSLAM), :mod:`jaxnav.io`
 :mod:`jaxnav.experiments` (real-data and reproduction studies; imported on demand).
 """
 
+from jaxnav import (
+    core as core,
+)
+from jaxnav import (
+    io as io,
+)
+from jaxnav import (
+    localization as localization,
+)
+from jaxnav import (
+    metrics as metrics,
+)
+from jaxnav import (
+    models as models,
+)
+from jaxnav import (
+    sim as sim,
+)
+from jaxnav import (
+    slam as slam,
+)
 from jaxnav._version import __version__ as __version__
-from jaxnav import core as core, io as io, localization as localization, metrics as metrics, models as models, sim as sim, slam as slam

@@ -57,7 +57,9 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
     try:
         robots = [int(r) for r in args.robots.split(",") if r]
     except ValueError:
-        print(f"jaxnav mrclam: --robots must be a comma-separated list of integers, got {args.robots!r}", file=sys.stderr)
+        print(
+            f"jaxnav mrclam: --robots must be a comma-separated list of integers, got {args.robots!r}", file=sys.stderr
+        )
         return 2
     algorithms = [a for a in args.algorithms.split(",") if a]
     unknown = [a for a in algorithms if a not in xp.ALGORITHMS]
@@ -83,8 +85,10 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
             print(f"jaxnav mrclam: robot {robot}: {err}", file=sys.stderr)
             return 2
         rows += [(robot, r) for r in results]
-        print(f"robot {robot}: {seq.controls.shape[0]} steps of {seq.dt:g} s, {seq.num_placed} measurements "
-              f"({seq.num_outliers} of other robots or unknown barcodes, ignored by the filters)")
+        print(
+            f"robot {robot}: {seq.controls.shape[0]} steps of {seq.dt:g} s, {seq.num_placed} measurements "
+            f"({seq.num_outliers} of other robots or unknown barcodes, ignored by the filters)"
+        )
         if args.out:
             _write_plot(lambda path: xp.plot_robot(seq, results, path), f"{args.out}-robot{robot}.png")
     print(xp.format_table(rows))
@@ -102,8 +106,14 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
         return 2
     try:
         setting = xp.HFSetting(
-            density=args.density, reader_side=args.reader_mm / 1000.0, trajectory=args.trajectory, laps=args.laps,
-            random_steps=args.steps, robot_particles=args.robot_particles, tag_particles=args.tag_particles, lag=args.lag,
+            density=args.density,
+            reader_side=args.reader_mm / 1000.0,
+            trajectory=args.trajectory,
+            laps=args.laps,
+            random_steps=args.steps,
+            robot_particles=args.robot_particles,
+            tag_particles=args.tag_particles,
+            lag=args.lag,
         )
         setting.sensor()
     except ValueError as err:
@@ -119,11 +129,15 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
     detections = int(np.asarray(run.detections.mask).sum())
     dead = xp.dead_reckoning(run)
     odo = 1000 * float(np.mean(np.linalg.norm(np.asarray(dead)[:, :2] - np.asarray(run.true_poses)[:, :2], axis=1)))
-    print(f"{steps} steps of {setting.dt:g} s, {detections} detections, {int(np.asarray(result.seen).sum())} tags mapped; "
-          f"odometry alone: dr = {odo:.1f} mm")
+    print(
+        f"{steps} steps of {setting.dt:g} s, {detections} detections, {int(np.asarray(result.seen).sum())} tags mapped; "
+        f"odometry alone: dr = {odo:.1f} mm"
+    )
     if np.asarray(run.kidnapped).any():
-        print(f"kidnapped at step {int(np.argmax(np.asarray(run.kidnapped)))}; recovery fired at steps "
-              f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}")
+        print(
+            f"kidnapped at step {int(np.argmax(np.asarray(run.kidnapped)))}; recovery fired at steps "
+            f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}"
+        )
     print(xp.format_errors([(args.method, errors)]))
     if args.out:
         _write_plot(lambda path: xp.plot_run(setting, args.method, world, result, path), f"{args.out}.png")
@@ -137,8 +151,15 @@ def _cmd_ir(args: argparse.Namespace) -> int:
     from jaxnav.experiments import ir_positioning as xp
 
     try:
-        setting = xp.IRSetting(layout=args.layout, drive=args.drive, height=args.height, speed=args.speed_mm / 1000.0,
-                               laps=args.laps, failed_code=args.failed_code, num_particles=args.particles)
+        setting = xp.IRSetting(
+            layout=args.layout,
+            drive=args.drive,
+            height=args.height,
+            speed=args.speed_mm / 1000.0,
+            laps=args.laps,
+            failed_code=args.failed_code,
+            num_particles=args.particles,
+        )
         drive = xp.drive_once(jax.random.PRNGKey(args.seed), setting)
     except ValueError as err:
         print(f"jaxnav ir: {err}", file=sys.stderr)
@@ -146,12 +167,16 @@ def _cmd_ir(args: argparse.Namespace) -> int:
     steps = drive.sim.controls.shape[0]
     det = int(np.asarray(drive.sim.detections.valid).sum())
     trace = drive.trace
-    print(f"jaxnav {__version__} ir: {setting.drive} drive, {setting.layout} layout"
-          f"{f', code {setting.failed_code} failed' if setting.failed_code else ''}, height {setting.height:g} m, "
-          f"{args.speed_mm:g} mm/s, {setting.num_particles} particles, seed {args.seed}")
-    print(f"{steps} steps of {setting.dt:g} s, {det} receiver detections; localization started at "
-          f"{float(drive.mcl.start_s):.1f} s, {int(drive.mcl.restarts)} re-draws after it; scored: "
-          f"{int((np.asarray(drive.inputs.record) >= 0).sum())} steps")
+    print(
+        f"jaxnav {__version__} ir: {setting.drive} drive, {setting.layout} layout"
+        f"{f', code {setting.failed_code} failed' if setting.failed_code else ''}, height {setting.height:g} m, "
+        f"{args.speed_mm:g} mm/s, {setting.num_particles} particles, seed {args.seed}"
+    )
+    print(
+        f"{steps} steps of {setting.dt:g} s, {det} receiver detections; localization started at "
+        f"{float(drive.mcl.start_s):.1f} s, {int(drive.mcl.restarts)} re-draws after it; scored: "
+        f"{int((np.asarray(drive.inputs.record) >= 0).sum())} steps"
+    )
     print(xp.format_errors([("IR MCL", drive.mcl), ("odometry", drive.dead)]))
     if not bool(np.asarray(trace.started)[-1]):
         print("the filter never saw a unique ID: no localization", file=sys.stderr)
@@ -166,12 +191,17 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
 
     weightings = tuple(w for w in args.weightings.split(",") if w)
     try:
-        setting = xp.RealSetting(num_particles=args.particles, reads_per_channel=args.reads_per_channel,
-                                 phase_sigma_fraction=args.phase_sigma)
+        setting = xp.RealSetting(
+            num_particles=args.particles,
+            reads_per_channel=args.reads_per_channel,
+            phase_sigma_fraction=args.phase_sigma,
+        )
         names = adarf.available_experiments(args.data) if args.experiment == "all" else (args.experiment,)
-        print(f"jaxnav {__version__} uhf-real: [A] Alg. 6 in 2D on the AdaRF reads ({adarf.data_dir(args.data)}), "
-              f"{setting.num_particles} particles, {setting.reads_per_channel} read(s) per channel and point, "
-              f"σ_phase = {setting.phase_sigma_fraction:g} λ, {args.seeds} seed(s) from {args.seed}")
+        print(
+            f"jaxnav {__version__} uhf-real: [A] Alg. 6 in 2D on the AdaRF reads ({adarf.data_dir(args.data)}), "
+            f"{setting.num_particles} particles, {setting.reads_per_channel} read(s) per channel and point, "
+            f"σ_phase = {setting.phase_sigma_fraction:g} λ, {args.seeds} seed(s) from {args.seed}"
+        )
         results = []
         for name in names:
             res = xp.localize(name, weightings, setting, seeds=args.seeds, seed=args.seed, root=args.data)
@@ -208,12 +238,22 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"jaxnav experiments: {err}", file=sys.stderr)
         return 2
-    print(f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
-          f"output in {args.out}{' (quick variant)' if args.quick else ''}")
+    print(
+        f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
+        f"output in {args.out}{' (quick variant)' if args.quick else ''}"
+    )
     try:
-        result = registry.run(exp.name, args.runs, jax.random.PRNGKey(args.seed), args.out, quick=args.quick,
-                              chunk_size=args.chunk, progress=not args.no_progress, workers=args.workers,
-                              fresh=args.fresh)
+        result = registry.run(
+            exp.name,
+            args.runs,
+            jax.random.PRNGKey(args.seed),
+            args.out,
+            quick=args.quick,
+            chunk_size=args.chunk,
+            progress=not args.no_progress,
+            workers=args.workers,
+            fresh=args.fresh,
+        )
     except ValueError as err:
         print(f"jaxnav experiments: {err}", file=sys.stderr)
         return 2
@@ -222,7 +262,9 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaxnav", description="Vectorised JAX particle filters for indoor localization and SLAM.")
+    parser = argparse.ArgumentParser(
+        prog="jaxnav", description="Vectorised JAX particle filters for indoor localization and SLAM."
+    )
     parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     demo = sub.add_parser("demo", help="run Monte Carlo localization in a simulated 10 m room")
@@ -233,45 +275,80 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_cmd_demo)
     mr = sub.add_parser("mrclam", help="run the classical filters on the UTIAS MRCLAM real dataset and score them")
     mr.add_argument("--robots", default="1,2,3", help="comma-separated robots (default 1,2,3)")
-    mr.add_argument("--algorithms", default=",".join(_MRCLAM_ALGORITHMS),
-                    help=f"comma-separated subset of {','.join(_MRCLAM_ALGORITHMS)} (default all)")
-    mr.add_argument("--duration", type=float, default=None, help="seconds from the start of each log (default: all 900 s)")
+    mr.add_argument(
+        "--algorithms",
+        default=",".join(_MRCLAM_ALGORITHMS),
+        help=f"comma-separated subset of {','.join(_MRCLAM_ALGORITHMS)} (default all)",
+    )
+    mr.add_argument(
+        "--duration", type=float, default=None, help="seconds from the start of each log (default: all 900 s)"
+    )
     mr.add_argument("--seed", type=int, default=0, help="seed of the particle filters (default 0)")
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
     mr.set_defaults(func=_cmd_mrclam)
-    hf = sub.add_parser("hf-slam", help="run PF-SLAM, PS-SLAM or FastSLAM on a simulated HF-RFID tag carpet ([W] ch. 3-4)")
+    hf = sub.add_parser(
+        "hf-slam", help="run PF-SLAM, PS-SLAM or FastSLAM on a simulated HF-RFID tag carpet ([W] ch. 3-4)"
+    )
     hf.add_argument("--method", choices=_HF_METHODS, default="pf_slam", help="SLAM method (default pf_slam)")
     hf.add_argument("--density", type=float, default=16.0, help="tags per m² (100, 16 or 4 in [W]; default 16)")
-    hf.add_argument("--reader-mm", type=float, default=60.0, help="reader footprint side in mm (60 in [W] ch. 3, 100-500 in ch. 4)")
-    hf.add_argument("--trajectory", choices=_HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)")
+    hf.add_argument(
+        "--reader-mm", type=float, default=60.0, help="reader footprint side in mm (60 in [W] ch. 3, 100-500 in ch. 4)"
+    )
+    hf.add_argument(
+        "--trajectory", choices=_HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)"
+    )
     hf.add_argument("--laps", type=int, default=3, help="laps of the rectangle (after the kidnapping for 'kidnapping')")
     hf.add_argument("--steps", type=int, default=2000, help="steps of 0.1 s of the random trajectory (default 2000)")
     hf.add_argument("--robot-particles", type=int, default=500, help="robot particles I (default 500, as [W])")
     hf.add_argument("--tag-particles", type=int, default=100, help="particles per tag J (default 100, as [W])")
     hf.add_argument("--lag", type=int, default=20, help="PS-SLAM lag L (default 20)")
     hf.add_argument("--seed", type=int, default=0, help="seed of the world and the filter (default 0)")
-    hf.add_argument("--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)")
+    hf.add_argument(
+        "--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)"
+    )
     hf.set_defaults(func=_cmd_hf_slam)
     irp = sub.add_parser("ir", help="localise with IR ceiling emitters on one simulated drive ([W] ch. 5)")
-    irp.add_argument("--layout", choices=_IR_LAYOUTS, default="proposed",
-                     help="proposed (3 unique + 8 repeated IDs) or unique-11 (default proposed)")
-    irp.add_argument("--drive", choices=_IR_DRIVES, default="loop",
-                     help="loop (laps of the predetermined trajectory), spots (the 70 marked spots) or rotation")
-    irp.add_argument("--height", type=float, default=1.2, help="emitter-receiver height in m (eq. 5.3 is for 1.2; default 1.2)")
+    irp.add_argument(
+        "--layout",
+        choices=_IR_LAYOUTS,
+        default="proposed",
+        help="proposed (3 unique + 8 repeated IDs) or unique-11 (default proposed)",
+    )
+    irp.add_argument(
+        "--drive",
+        choices=_IR_DRIVES,
+        default="loop",
+        help="loop (laps of the predetermined trajectory), spots (the 70 marked spots) or rotation",
+    )
+    irp.add_argument(
+        "--height", type=float, default=1.2, help="emitter-receiver height in m (eq. 5.3 is for 1.2; default 1.2)"
+    )
     irp.add_argument("--speed-mm", type=float, default=200.0, help="robot speed in mm/s (default 200)")
     irp.add_argument("--laps", type=int, default=3, help="laps of the loop (default 3; laps 2+ are scored)")
-    irp.add_argument("--failed-code", type=int, default=0, help="switch off the emitters of this repeated ID (1-9; default none)")
+    irp.add_argument(
+        "--failed-code", type=int, default=0, help="switch off the emitters of this repeated ID (1-9; default none)"
+    )
     irp.add_argument("--particles", type=int, default=1000, help="particles (default 1000, as [W])")
     irp.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
     irp.set_defaults(func=_cmd_ir)
     ur = sub.add_parser("uhf-real", help="localise the three tags of the AdaRF real UHF-RFID reads ([A] Alg. 6, 2D)")
-    ur.add_argument("--experiment", default="181218-01-50-8", help="AdaRF experiment folder, or 'all' (default 181218-01-50-8)")
-    ur.add_argument("--weightings", default=",".join(_UHF_WEIGHTINGS),
-                    help=f"comma-separated subset of {','.join(_UHF_WEIGHTINGS)} (default all)")
+    ur.add_argument(
+        "--experiment", default="181218-01-50-8", help="AdaRF experiment folder, or 'all' (default 181218-01-50-8)"
+    )
+    ur.add_argument(
+        "--weightings",
+        default=",".join(_UHF_WEIGHTINGS),
+        help=f"comma-separated subset of {','.join(_UHF_WEIGHTINGS)} (default all)",
+    )
     ur.add_argument("--particles", type=int, default=5000, help="particles (default 5000)")
-    ur.add_argument("--reads-per-channel", type=int, default=1, help="reads of each of the 8 channels per aperture point (default 1)")
+    ur.add_argument(
+        "--reads-per-channel",
+        type=int,
+        default=1,
+        help="reads of each of the 8 channels per aperture point (default 1)",
+    )
     ur.add_argument("--phase-sigma", type=float, default=0.1, help="σ_phase as a fraction of λ (default 0.1)")
     ur.add_argument("--seeds", type=int, default=1, help="seeded runs per tag and weighting (default 1)")
     ur.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
@@ -285,10 +362,17 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--out", default="jaxnav-experiments", help="output directory for JSON, Markdown and PNG")
     xp.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
     xp.add_argument("--chunk", type=int, default=25, help="runs per vmapped call (bounds memory; default 25)")
-    xp.add_argument("--workers", type=int, default=None,
-                    help="chunks run at once (default: up to 4 on a CPU, its core count; 1 on a GPU)")
-    xp.add_argument("--fresh", action="store_true",
-                    help="discard DIR/NAME.runs.json instead of resuming it (after changing the code)")
+    xp.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="chunks run at once (default: up to 4 on a CPU, its core count; 1 on a GPU)",
+    )
+    xp.add_argument(
+        "--fresh",
+        action="store_true",
+        help="discard DIR/NAME.runs.json instead of resuming it (after changing the code)",
+    )
     xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
     xp.add_argument("--no-progress", action="store_true", help="no progress bar")
     xp.set_defaults(func=_cmd_experiments)

@@ -49,8 +49,6 @@ class TrajectoryError(NamedTuple):
 # files
 
 
-
-
 def position_errors(estimates: jax.Array, truth: jax.Array) -> jax.Array:
     """Euclidean position error ``‖p̂_t − p_t‖`` (m) of poses ``[..., 3]`` (or ``[..., 2]``)."""
     estimates, truth = jnp.asarray(estimates), jnp.asarray(truth)

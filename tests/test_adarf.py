@@ -62,8 +62,9 @@ def test_loader_errors(tmp_path, exp):
     # a file without the documented columns is refused with its path
     root = tmp_path / adarf.DATASET
     (root / "dataset1_test" / "x").mkdir(parents=True)
-    (root / "tag_ground_truth.csv").write_text("experiment,epc,x_m,y_m\n" + "".join(
-        f"x,{e},0.1,0.5\n" for e in adarf.TARGET_EPCS))
+    (root / "tag_ground_truth.csv").write_text(
+        "experiment,epc,x_m,y_m\n" + "".join(f"x,{e},0.1,0.5\n" for e in adarf.TARGET_EPCS)
+    )
     for i in range(adarf.NUM_POINTS):
         with gzip.open(root / "dataset1_test" / "x" / f"{i}.csv.gz", "wt", encoding="utf-8-sig") as fh:
             fh.write("epc,frequency,RSSI\n")
@@ -87,11 +88,13 @@ def test_to_uhf_reads_slots_channels_and_alignment(exp):
     np.testing.assert_allclose(lam, np.repeat(U.SPEED_OF_LIGHT / adarf.CHANNELS_HZ, 3), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(reads.reader[:, 0, 0]), exp.aperture_x, atol=1e-6)
     assert np.all(np.asarray(reads.reader[..., 3]) == np.float32(adarf.BORESIGHT_YAW))
+
     # aligned channels agree: the circular spread of the 8 channels' mean phases at a point is small,
     # and much larger without the alignment (offsets up to 1.6 rad apart, see channel_offsets)
     def spread(r):
         z = np.exp(1j * np.asarray(r.phase)).reshape(adarf.NUM_POINTS, 8, 3).mean(-1)
         return np.mean(1 - np.abs(z.mean(-1)))
+
     raw = adarf.to_uhf_reads(exp, 1, reads_per_channel=3, align_channels=False)
     assert spread(reads) < 0.1 < spread(raw)
     # one channel: 50 x reads_per_channel slots at that channel's wavelength

@@ -57,7 +57,7 @@ def _kidnap_run(seed):
     return controls, obs, truth
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _runs(seed):
     """Augmented MCL and plain MCL (same seed, N = 1,000, same models) on the kidnap run."""
     config, params, p = _params(1000)
@@ -70,8 +70,18 @@ def _runs(seed):
     mcl_params = mcl.MCLParams(p.motion, FILTER_SENSOR, p.landmarks)
     mcl_state = mcl.init(k_init, mcl_config, mcl_params, START, sd)
     _, mtrace = mcl.run(k_run, mcl_config, mcl_params, controls, obs, mcl_state)
-    return dict(config=config, params=params, controls=controls, obs=obs, truth=truth, key=k_run,
-                state=state, final=final, trace=trace, mtrace=mtrace)
+    return dict(
+        config=config,
+        params=params,
+        controls=controls,
+        obs=obs,
+        truth=truth,
+        key=k_run,
+        state=state,
+        final=final,
+        trace=trace,
+        mtrace=mtrace,
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -156,7 +166,9 @@ def test_update_average_and_injection_probability_edge_cases():
     assert float(am._update_average(jnp.asarray(3.0), jnp.asarray(-2.0), 1.0)) == -2.0
     assert float(am._update_average(jnp.asarray(ninf), jnp.asarray(-2.0), 1.0)) == -2.0
     # a zero-likelihood step (degenerate) only decays the average, no NaN
-    np.testing.assert_allclose(am._update_average(jnp.asarray(5.0), jnp.asarray(ninf), 0.5), 5.0 + math.log(0.5), rtol=1e-6)
+    np.testing.assert_allclose(
+        am._update_average(jnp.asarray(5.0), jnp.asarray(ninf), 0.5), 5.0 + math.log(0.5), rtol=1e-6
+    )
     assert float(am._update_average(jnp.asarray(ninf), jnp.asarray(ninf), 0.5)) == -np.inf
     p = am.injection_probability
     assert float(p(jnp.asarray(ninf), jnp.asarray(ninf))) == 0.0  # w_slow = 0: nothing yet
@@ -225,7 +237,9 @@ def test_no_retrace_between_calls_with_the_same_shapes(monkeypatch):
     am.run(jax.random.PRNGKey(0), config, params, r0["controls"][:5], jax.tree_util.tree_map(cut, r0["obs"]), state)
     assert len(traces) == 1  # scan traces its body once
     cache = am._run_jit._cache_size()
-    params2 = params._replace(bounds=jnp.asarray([1.0, 9.0, 1.0, 9.0]), sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1])))
+    params2 = params._replace(
+        bounds=jnp.asarray([1.0, 9.0, 1.0, 9.0]), sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1]))
+    )
     state2 = state._replace(log_w_slow=jnp.float32(3.0), log_w_fast=jnp.float32(2.0))  # strong float32, as init gives
     obs2 = jax.tree_util.tree_map(lambda x: x[5:10], r1["obs"])
     am.run(jax.random.PRNGKey(1), config, params2, r1["controls"][5:10], obs2, state2)
@@ -289,6 +303,8 @@ def test_bad_params_and_state_are_refused_with_the_argument_named():
     with pytest.raises(ValueError, match=r"state.particles must have shape \(50, 3\)"):
         am.run(key, config, params, controls, obs, state._replace(particles=state.particles[:3]))
     with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
-        am.run(key, config, params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), controls, obs, state)
+        am.run(
+            key, config, params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), controls, obs, state
+        )
     with pytest.raises(ValueError, match="same number of steps"):
         am.run(key, config, params, controls[:2], obs, state)

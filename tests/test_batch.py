@@ -78,7 +78,9 @@ def test_no_run_args(getkey):
 @pytest.mark.parametrize(("chunk", "expected"), [(3, [3, 6, 7]), (1, list(range(1, R + 1))), (R, [R]), (100, [R])])
 def test_progress_called_once_per_chunk(chunk, expected, getkey):
     calls = []
-    B.monte_carlo(lambda k: jax.random.uniform(k), getkey(), R, chunk_size=chunk, progress=lambda d, t: calls.append((d, t)))
+    B.monte_carlo(
+        lambda k: jax.random.uniform(k), getkey(), R, chunk_size=chunk, progress=lambda d, t: calls.append((d, t))
+    )
     assert calls == [(d, R) for d in expected]
 
 

@@ -100,8 +100,13 @@ def _reads_np(case, t: int, drop: int | None = None):
 
 def _as_uhf(reads, dtype):
     reader, y, phi, lam, mask = reads
-    return U.UHFReads(jnp.asarray(reader, dtype), jnp.asarray(y, dtype), jnp.asarray(phi, dtype),
-                      jnp.asarray(lam, dtype), jnp.asarray(mask))
+    return U.UHFReads(
+        jnp.asarray(reader, dtype),
+        jnp.asarray(y, dtype),
+        jnp.asarray(phi, dtype),
+        jnp.asarray(lam, dtype),
+        jnp.asarray(mask),
+    )
 
 
 _loglik_jit = jax.jit(rt.log_likelihoods, static_argnames=("config",))
@@ -184,5 +189,3 @@ def test_step_matches_jaxnav_step_float64(case, cloud, expect_resample):
         assert np.allclose(pf.lw, -math.log(n))
     else:
         assert out.ess > 0.5 * n
-
-

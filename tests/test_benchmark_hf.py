@@ -136,8 +136,10 @@ def test_s2_rows_smallest_size_and_ratio():
     assert all(r["ratio_to_10_tags"] == 1.0 and r["detections_per_step"] == 4 for r in rows)
     scan = next(r for r in rows if r["mode"] == "in_scan")
     assert "donate_state=True" in scan["note"] and scan["steps"] == 20 and scan["state_bytes"] > 0
-    fake = [dict(workload="S2", method="pf_slam", mode="per_call", size={"tags": n}, median_s=v)
-            for n, v in ((10, 2e-3), (1000, 2.2e-3), (100_000, 2.4e-3))]
+    fake = [
+        dict(workload="S2", method="pf_slam", mode="per_call", size={"tags": n}, median_s=v)
+        for n, v in ((10, 2e-3), (1000, 2.2e-3), (100_000, 2.4e-3))
+    ]
     notes = s2.ratio_notes(fake)
     assert notes == ["S2 pf_slam per_call: t(100000)/t(10) = 1.20 (target ≤ 1.5)"]
 
@@ -173,16 +175,43 @@ def test_plots_draw_the_hf_workloads(tmp_path):
         for i in (100, 250):
             for method in s1.METHODS:
                 for mode in ("per_call", "in_scan"):
-                    rows.append(dict(workload="S1", implementation="jaxnav", size={"robot_particles": i, "tags": tags},
-                                     mode=mode, median_s=1e-5 * i, method=method, setting=setting,
-                                     density_tags_per_m2=4.0, reader_side_m=0.3))
+                    rows.append(
+                        dict(
+                            workload="S1",
+                            implementation="jaxnav",
+                            size={"robot_particles": i, "tags": tags},
+                            mode=mode,
+                            median_s=1e-5 * i,
+                            method=method,
+                            setting=setting,
+                            density_tags_per_m2=4.0,
+                            reader_side_m=0.3,
+                        )
+                    )
     for n in (10, 1000):
         for method in s1.METHODS:
-            rows.append(dict(workload="S2", implementation="jaxnav", size={"robot_particles": 500, "tags": n},
-                             mode="per_call", median_s=1e-3 * (1 + n / 1000), method=method))
+            rows.append(
+                dict(
+                    workload="S2",
+                    implementation="jaxnav",
+                    size={"robot_particles": 500, "tags": n},
+                    mode="per_call",
+                    median_s=1e-3 * (1 + n / 1000),
+                    method=method,
+                )
+            )
     for r in (1, 10):
-        rows.append(dict(workload="W5", implementation="jaxnav", size={"runs": r}, mode="per_call",
-                         median_s=1.0 / r, compile_s=20.0, method="pf_slam"))
+        rows.append(
+            dict(
+                workload="W5",
+                implementation="jaxnav",
+                size={"runs": r},
+                mode="per_call",
+                median_s=1.0 / r,
+                compile_s=20.0,
+                method="pf_slam",
+            )
+        )
     from benchmarks.workloads import discover
 
     out = plot_all({"machine": {}, "rows": rows}, str(tmp_path / "hf.json"), discover())

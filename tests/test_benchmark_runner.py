@@ -23,7 +23,9 @@ def _fake_workload(sizes_done: list) -> Workload:
 def test_each_size_is_written_as_it_finishes_and_a_full_run_is_marked_complete(tmp_path, monkeypatch):
     done: list = []
     monkeypatch.setattr(run, "discover", lambda: {"ZZ": _fake_workload(done)})
-    monkeypatch.setattr(harness, "measure_bandwidth", lambda: {"bandwidth_bytes_per_s": 1e10, "bandwidth_GB_per_s": 10.0})
+    monkeypatch.setattr(
+        harness, "measure_bandwidth", lambda: {"bandwidth_bytes_per_s": 1e10, "bandwidth_GB_per_s": 10.0}
+    )
     out = tmp_path / "res.json"
     with pytest.raises(KeyboardInterrupt):
         run.main(["--only", "ZZ", "--out", str(out), "--no-plot", "--retries", "0"])
@@ -33,7 +35,9 @@ def test_each_size_is_written_as_it_finishes_and_a_full_run_is_marked_complete(t
     assert [r["size"]["n"] for r in partial["rows"]] == [1, 2]
     assert not (tmp_path / "res.json.tmp").exists()
 
-    monkeypatch.setattr(run, "discover", lambda: {"ZZ": Workload("ZZ", "t", [{"n": 1}, {"n": 2}], _fake_workload([]).run, "n")})
+    monkeypatch.setattr(
+        run, "discover", lambda: {"ZZ": Workload("ZZ", "t", [{"n": 1}, {"n": 2}], _fake_workload([]).run, "n")}
+    )
     assert run.main(["--only", "ZZ", "--out", str(out), "--no-plot", "--retries", "0"]) == 0
     full = json.loads(out.read_text())
     assert full["complete"] is True and [r["size"]["n"] for r in full["rows"]] == [1, 2]

@@ -63,8 +63,9 @@ SENSOR_SD = (0.1, 0.05)
 def _case(dtype, seed=0):
     """Per-particle maps, non-uniform log-weights and observations (NumPy arrays)."""
     rng = np.random.default_rng(seed)
-    poses = np.column_stack([5.0 + 0.1 * rng.standard_normal(M), 5.0 + 0.1 * rng.standard_normal(M),
-                             0.3 + 0.05 * rng.standard_normal(M)])
+    poses = np.column_stack(
+        [5.0 + 0.1 * rng.standard_normal(M), 5.0 + 0.1 * rng.standard_normal(M), 0.3 + 0.05 * rng.standard_normal(M)]
+    )
     lw = rng.normal(0.0, 1.0, M)
     lw -= np.log(np.sum(np.exp(lw - lw.max()))) + lw.max()
     truth = rng.uniform(0.0, 10.0, (N, 2))
@@ -81,12 +82,15 @@ def _case(dtype, seed=0):
 
 def _jaxnav_step(dtype, ess_threshold, key, sensor_sd=SENSOR_SD):
     poses, lw, means, covs, z = _case(dtype)
-    config = fs.FastSLAMConfig(num_particles=M, num_landmarks=N, version=1, resampling="systematic",
-                               ess_threshold=ess_threshold)
-    params = fs.FastSLAMParams(VelocityNoise(jnp.zeros(6, dtype), jnp.zeros(3, dtype)),
-                               RangeBearingNoise(jnp.asarray(sensor_sd, dtype)))
-    state = fs.FastSLAMState(jnp.asarray(poses), jnp.asarray(lw), jnp.asarray(means), jnp.asarray(covs),
-                             jnp.ones(N, bool))
+    config = fs.FastSLAMConfig(
+        num_particles=M, num_landmarks=N, version=1, resampling="systematic", ess_threshold=ess_threshold
+    )
+    params = fs.FastSLAMParams(
+        VelocityNoise(jnp.zeros(6, dtype), jnp.zeros(3, dtype)), RangeBearingNoise(jnp.asarray(sensor_sd, dtype))
+    )
+    state = fs.FastSLAMState(
+        jnp.asarray(poses), jnp.asarray(lw), jnp.asarray(means), jnp.asarray(covs), jnp.ones(N, bool)
+    )
     obs = RangeBearingObs(jnp.asarray(IDS), jnp.asarray(z), jnp.ones(len(IDS), bool))
     new, info = fs.step(key, state, config, params, jnp.asarray(CONTROL, dtype), obs)
     return jax.tree_util.tree_map(np.asarray, (new, info))
@@ -234,10 +238,14 @@ def test_prototype_landmark_ekf_matches_kalman_float64():
         poses, _, means, covs, z = (jnp.asarray(x) for x in _case(np.float64))
         r = jnp.diag(jnp.asarray(SENSOR_SD, jnp.float64) ** 2)
         j = 5
-        ref = jax.vmap(lambda p, mu, c: fs._landmark_ekf(fs.RANGE_BEARING, r, p, mu, c, z[0]))(poses, means[:, j], covs[:, j])
+        ref = jax.vmap(lambda p, mu, c: fs._landmark_ekf(fs.RANGE_BEARING, r, p, mu, c, z[0]))(
+            poses, means[:, j], covs[:, j]
+        )
         mu, cov, ll = w3.prototype_landmark_ekf(fs.RANGE_BEARING, r, poses, means[:, j], covs[:, j], z[0])
         np.testing.assert_allclose(np.asarray(mu), np.asarray(ref.mean), rtol=0, atol=1e-9)
-        np.testing.assert_allclose(np.asarray(cov), np.asarray(ref.cov), rtol=0, atol=1e-9 * float(jnp.abs(ref.cov).max()))
+        np.testing.assert_allclose(
+            np.asarray(cov), np.asarray(ref.cov), rtol=0, atol=1e-9 * float(jnp.abs(ref.cov).max())
+        )
         np.testing.assert_allclose(np.asarray(ll), np.asarray(ref.log_likelihood), rtol=0, atol=1e-9)
 
 

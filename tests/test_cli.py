@@ -10,7 +10,9 @@ import jaxnav
 
 
 def _jaxnav(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "jaxnav.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "jaxnav.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600
+    )
 
 
 def test_version(tmp_path):
@@ -65,17 +67,22 @@ def test_ir_runs_a_drive_and_writes_png(tmp_path):
     pytest.importorskip("matplotlib")
     out = _jaxnav("ir", "--drive", "rotation", "--out", str(tmp_path / "ir"), cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    rows = {line.split()[0]: line.split() for line in out.stdout.splitlines() if line.startswith(("IR MCL", "odometry"))}
+    rows = {
+        line.split()[0]: line.split() for line in out.stdout.splitlines() if line.startswith(("IR MCL", "odometry"))
+    }
     mcl_dr, odo_dr = float(rows["IR"][5]), float(rows["odometry"][4])
     assert mcl_dr < 0.5 * odo_dr, out.stdout
     assert (tmp_path / "ir.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("args, message", [
-    (("--height", "0"), "height"),
-    (("--failed-code", "12"), "failed_code"),
-    (("--speed-mm", "-5"), "speed"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--height", "0"), "height"),
+        (("--failed-code", "12"), "failed_code"),
+        (("--speed-mm", "-5"), "speed"),
+    ],
+)
 def test_ir_rejects_bad_arguments(tmp_path, args, message):
     out = _jaxnav("ir", *args, "--out", "", cwd=tmp_path)
     assert out.returncode == 2
@@ -109,8 +116,18 @@ def adarf_dir():
 def test_uhf_real_localizes_the_real_tags(tmp_path, adarf_dir):
     """``jaxnav uhf-real``: a row per tag, errors under the prior's spread, a PNG."""
     pytest.importorskip("matplotlib")
-    out = _jaxnav("uhf-real", "--weightings", "phase", "--particles", "2000", "--data", adarf_dir,
-                  "--out", str(tmp_path / "u"), cwd=tmp_path)
+    out = _jaxnav(
+        "uhf-real",
+        "--weightings",
+        "phase",
+        "--particles",
+        "2000",
+        "--data",
+        adarf_dir,
+        "--out",
+        str(tmp_path / "u"),
+        cwd=tmp_path,
+    )
     assert out.returncode == 0, out.stderr
     rows = [line.split() for line in out.stdout.splitlines() if line.startswith("181218-01-50-8")]
     assert [r[1] for r in rows] == ["0", "1", "2"]
@@ -119,11 +136,14 @@ def test_uhf_real_localizes_the_real_tags(tmp_path, adarf_dir):
     assert (tmp_path / "u-181218-01-50-8.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("args, message", [
-    (("--weightings", "loud"), "weighting"),
-    (("--particles", "0"), "num_particles"),
-    (("--experiment", "no-such"), "unknown experiment"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--weightings", "loud"), "weighting"),
+        (("--particles", "0"), "num_particles"),
+        (("--experiment", "no-such"), "unknown experiment"),
+    ],
+)
 def test_uhf_real_rejects_bad_arguments(tmp_path, adarf_dir, args, message):
     out = _jaxnav("uhf-real", *args, "--data", adarf_dir, "--out", "", cwd=tmp_path)
     assert out.returncode == 2

@@ -241,8 +241,13 @@ def test_sequential_slots_match_dense_reference():
         )
         prior = jnp.asarray([[3.0, 1.0], [0.0, 4.0], [-2.0, -2.0], [5.0, 5.0]])
         s0 = ekf_slam.init(
-            cfg, params, jnp.asarray([0.2, 0.1, 0.3]), jnp.diag(jnp.asarray([0.05, 0.04, 0.01])),
-            prior, 0.2 * jnp.eye(2), jnp.asarray([True, True, False, False]),
+            cfg,
+            params,
+            jnp.asarray([0.2, 0.1, 0.3]),
+            jnp.diag(jnp.asarray([0.05, 0.04, 0.01])),
+            prior,
+            0.2 * jnp.eye(2),
+            jnp.asarray([True, True, False, False]),
         )
         assert s0.mean.dtype == jnp.float64
         ids = jnp.asarray([1, 2, 2, 0, 1, 7], jnp.int32)
@@ -336,8 +341,13 @@ def test_bad_input_is_rejected():
         ekf_slam.EKFSLAMConfig(motion_model="teleport")
     state = ekf_slam.init(CONFIG, PARAMS, X0, P0)
     with pytest.raises(ValueError, match="state.mean"):
-        ekf_slam.step(state, ekf_slam.EKFSLAMConfig(num_landmarks=M + 1), PARAMS, jnp.zeros(3), lm.RangeBearingObs(
-            jnp.zeros(2, jnp.int32), jnp.zeros((2, 2)), jnp.ones(2, bool)))
+        ekf_slam.step(
+            state,
+            ekf_slam.EKFSLAMConfig(num_landmarks=M + 1),
+            PARAMS,
+            jnp.zeros(3),
+            lm.RangeBearingObs(jnp.zeros(2, jnp.int32), jnp.zeros((2, 2)), jnp.ones(2, bool)),
+        )
     obs = lm.RangeBearingObs(jnp.zeros((5, 2), jnp.int32), jnp.zeros((5, 2, 2)), jnp.ones((5, 2), bool))
     with pytest.raises(ValueError, match="same number of steps"):
         ekf_slam.run(CONFIG, PARAMS, jnp.zeros((4, 3)), obs, state)

@@ -36,15 +36,21 @@ NAMES = ("table-3.1", "fig-3.7", "table-4.1", "fig-4.4", "table-3.2", "table-4.2
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("experiments")
-    res = {name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS, progress=False)
-           for name in NAMES}
+    res = {
+        name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS, progress=False)
+        for name in NAMES
+    }
     return res, out
 
 
 def _row(result, method, density=None, trajectory=None):
-    rows = [r for r in result["rows"] if r["method"] == method
-            and (density is None or r["setting"]["density"] == density)
-            and (trajectory is None or r["setting"]["trajectory"] == trajectory)]
+    rows = [
+        r
+        for r in result["rows"]
+        if r["method"] == method
+        and (density is None or r["setting"]["density"] == density)
+        and (trajectory is None or r["setting"]["trajectory"] == trajectory)
+    ]
     assert len(rows) == 1
     return rows[0]
 

@@ -33,9 +33,14 @@ def test_cells_have_unique_ids_and_valid_settings(name, quick):
             assert c.setting.robot_particles <= 200
 
 
-@pytest.mark.parametrize("quick, given, expected", [
-    (False, None, "LIGHT_COMPILE"), (True, None, "FAST_COMPILE"), (False, {"xla_backend_optimization_level": 2}, "given"),
-])
+@pytest.mark.parametrize(
+    "quick, given, expected",
+    [
+        (False, None, "LIGHT_COMPILE"),
+        (True, None, "FAST_COMPILE"),
+        (False, {"xla_backend_optimization_level": 2}, "given"),
+    ],
+)
 def test_compiler_options_default_to_the_experiments_own(quick, given, expected, monkeypatch):
     """A full HF-RFID SLAM sweep compiles with LIGHT_COMPILE, a quick one with FAST_COMPILE,
     and options passed by the caller win."""
@@ -65,8 +70,12 @@ def test_table_summary_holds_mean_interval_and_thesis_value(tmp_path):
     raw = _fake_errors(cells, 8, np.random.default_rng(0))
     result = {"experiment": exp.name, "title": exp.title, "runs": 8, "quick": False, **exp.summarize(raw, cells, False)}
     rows = result["rows"]
-    assert [(r["setting"]["density"], r["method"]) for r in rows] == [(16.0, "fastslam"), (16.0, "pf_slam"),
-                                                                      (100.0, "fastslam"), (100.0, "pf_slam")]
+    assert [(r["setting"]["density"], r["method"]) for r in rows] == [
+        (16.0, "fastslam"),
+        (16.0, "pf_slam"),
+        (100.0, "fastslam"),
+        (100.0, "pf_slam"),
+    ]
     first = rows[0]
     assert first["setting"] == {"density": 16.0, "reader_mm": 60.0, "trajectory": "rectangle"}
     values = raw[cells[0].id]["dr_mm"]
@@ -109,6 +118,9 @@ def test_figure_summary_gives_curves(tmp_path):
 def test_cli_lists_the_experiments_and_refuses_unknown_names():
     out = subprocess.run([sys.executable, "-m", "jaxnav.cli", "experiments", "list"], capture_output=True, text=True)
     assert out.returncode == 0 and all(name in out.stdout for name in NAMES)
-    bad = subprocess.run([sys.executable, "-m", "jaxnav.cli", "experiments", "run", "table-9.9", "--runs", "1"],
-                         capture_output=True, text=True)
+    bad = subprocess.run(
+        [sys.executable, "-m", "jaxnav.cli", "experiments", "run", "table-9.9", "--runs", "1"],
+        capture_output=True,
+        text=True,
+    )
     assert bad.returncode == 2 and "unknown experiment" in bad.stderr

@@ -22,7 +22,9 @@ def test_sincos_accuracy_over_the_documented_range():
 
 def test_atan2_accuracy_all_quadrants_and_zero():
     rng = np.random.default_rng(0)
-    y = np.concatenate([rng.normal(size=200000), rng.normal(size=1000) * 1e-30, [0.0, 0.0, 1.0, -1.0]]).astype(np.float32)
+    y = np.concatenate([rng.normal(size=200000), rng.normal(size=1000) * 1e-30, [0.0, 0.0, 1.0, -1.0]]).astype(
+        np.float32
+    )
     x = np.concatenate([rng.normal(size=200000), rng.normal(size=1000), [1.0, -1.0, 0.0, 0.0]]).astype(np.float32)
     got = np.asarray(jax.jit(fm.atan2)(jnp.asarray(y), jnp.asarray(x)))
     want = np.arctan2(y.astype(np.float64), x.astype(np.float64))
@@ -41,7 +43,14 @@ def test_gradients_are_the_analytic_ones():
     x = jnp.asarray([0.3, -2.0, 5.0])
     np.testing.assert_allclose(jax.vmap(jax.grad(fm.sin))(x), np.cos(np.asarray(x)), atol=1e-6)
     np.testing.assert_allclose(jax.vmap(jax.grad(fm.cos))(x), -np.sin(np.asarray(x)), atol=1e-6)
-    check_grads(fm.atan2, (jnp.asarray([0.4, -1.2]), jnp.asarray([-0.7, 2.0])), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
+    check_grads(
+        fm.atan2,
+        (jnp.asarray([0.4, -1.2]), jnp.asarray([-0.7, 2.0])),
+        order=1,
+        modes=["fwd", "rev"],
+        atol=1e-2,
+        rtol=1e-2,
+    )
 
 
 @pytest.mark.parametrize("dtype", [jnp.int32, jnp.uint32])
@@ -55,8 +64,10 @@ def test_int_cumsum_is_exact_and_wraps_on_both_backends_paths(m, dtype):
     np.testing.assert_array_equal(jax.jit(fm.int_cumsum)(arr), want)
     np.testing.assert_array_equal(jax.jit(fm._blocked_int_cumsum)(arr), want)
     np.testing.assert_array_equal(jax.jit(lambda v: jnp.cumsum(v, dtype=v.dtype))(arr), want)
-    np.testing.assert_array_equal(jax.jit(jax.vmap(fm.int_cumsum))(jnp.stack([arr, arr[::-1]])),
-                                  np.stack([want, (np.cumsum(x[::-1]) % 2**32).astype(np.uint32).view(np.dtype(dtype))]))
+    np.testing.assert_array_equal(
+        jax.jit(jax.vmap(fm.int_cumsum))(jnp.stack([arr, arr[::-1]])),
+        np.stack([want, (np.cumsum(x[::-1]) % 2**32).astype(np.uint32).view(np.dtype(dtype))]),
+    )
 
 
 def test_int_cumsum_refuses_other_types():
@@ -68,7 +79,15 @@ def test_int_cumsum_refuses_other_types():
 
 @pytest.mark.parametrize(
     "shape_a, shape_b",
-    [((2, 2), (2, 2)), ((3, 2), (2,)), ((2,), (2, 3)), ((4,), (4,)), ((2, 4), (4, 5)), ((3, 6), (6, 2)), ((2, 3, 2), (2, 2))],
+    [
+        ((2, 2), (2, 2)),
+        ((3, 2), (2,)),
+        ((2,), (2, 3)),
+        ((4,), (4,)),
+        ((2, 4), (4, 5)),
+        ((3, 6), (6, 2)),
+        ((2, 3, 2), (2, 2)),
+    ],
 )
 def test_matmul_equals_the_matrix_product(shape_a, shape_b, getkey):
     """Written-out products (contractions ≤ 4) and the ``@`` fallback (longer contractions, 3-D operands)

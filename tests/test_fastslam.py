@@ -9,11 +9,10 @@ import pytest
 
 from jaxnav import metrics
 from jaxnav.core import fastmath, resampling
-from jaxnav.models import hf_rfid
+from jaxnav.models import hf_rfid, motion
 from jaxnav.models import landmarks as lm
-from jaxnav.models import motion
-from jaxnav.slam import fastslam as fs
 from jaxnav.sim import landmark_world as lw
+from jaxnav.slam import fastslam as fs
 
 LANDMARKS = lw.square_room_landmarks(10.0, 8)
 MOTION = motion.VelocityNoise(jnp.asarray([0.01, 0.005, 0.005, 0.01, 0.0, 0.0]), jnp.asarray([0.01, 0.01, 0.005]))
@@ -184,11 +183,15 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     poses = jnp.asarray(X0 + rng.normal(0, 0.05, (n, 3)), jnp.float32)
     lms = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
     means = jnp.asarray(lms + rng.normal(0, 0.1, (n, m, 2)), jnp.float32)
-    covs = jnp.broadcast_to(0.02 * jnp.eye(2), (n, m, 2, 2)) * jnp.asarray(rng.uniform(0.5, 2, (n, m, 1, 1)), jnp.float32)
+    covs = jnp.broadcast_to(0.02 * jnp.eye(2), (n, m, 2, 2)) * jnp.asarray(
+        rng.uniform(0.5, 2, (n, m, 1, 1)), jnp.float32
+    )
     seen = jnp.asarray([True, True, True, False, False, True])
     ids = jnp.asarray([3, 0, 3, 9, 1, 0, 4, 2, 0, 5, -1, 1], jnp.int32)
     mask = jnp.asarray([True, True, True, True, True, True, True, True, True, False, True, True])
-    z = jax.vmap(lambda j: lm.predict(X0, lms[j]))(jnp.clip(ids, 0, m - 1)) + jnp.asarray(rng.normal(0, 0.05, (12, 2)), jnp.float32)
+    z = jax.vmap(lambda j: lm.predict(X0, lms[j]))(jnp.clip(ids, 0, m - 1)) + jnp.asarray(
+        rng.normal(0, 0.05, (12, 2)), jnp.float32
+    )
     z = jnp.where(mask[:, None], z, jnp.nan)
     obs = lm.RangeBearingObs(ids, z, mask)
     valid, safe_ids, _ = fs._slot_valid(obs, m)
@@ -204,7 +207,9 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
         np.testing.assert_allclose(ll, ref_ll, rtol=1e-5, atol=1e-4)
         assert int(num_new) == ref_new == 2
     # the reference itself moved landmarks 0 (three observations), 1, 2, 3 and left the masked 5 alone
-    assert not np.allclose(ref_means[:, [0, 1, 2, 3]], means[:, [0, 1, 2, 3]]) and np.array_equal(ref_means[:, 5], means[:, 5])
+    assert not np.allclose(ref_means[:, [0, 1, 2, 3]], means[:, [0, 1, 2, 3]]) and np.array_equal(
+        ref_means[:, 5], means[:, 5]
+    )
 
 
 def test_write_rows_gives_each_particle_its_ancestors_rows(getkey):
@@ -267,7 +272,9 @@ def test_log_likelihood_gradient_matches_finite_differences(map_copy, getkey):
     with jax.enable_x64(True):
         steps = 15
         sim = jax.tree_util.tree_map(lambda x: x[0], _sims(getkey(), 1, steps))
-        sim = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x, sim)
+        sim = jax.tree_util.tree_map(
+            lambda x: jnp.asarray(x, jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x, sim
+        )
         cfg = fs.FastSLAMConfig(num_particles=16, num_landmarks=8, resampling="systematic", map_copy=map_copy)
         motion_noise = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), MOTION)
         k_init, k_run = getkey(), getkey()
@@ -298,9 +305,7 @@ def _robot_frame_model():
     class Noise(tuple):
         pass
 
-    return fs.ObservationModel(
-        "robot_frame_xy", 2, 2, mean, inverse, lambda sd: jnp.diag(sd**2), (), lambda sd: None
-    )
+    return fs.ObservationModel("robot_frame_xy", 2, 2, mean, inverse, lambda sd: jnp.diag(sd**2), (), lambda sd: None)
 
 
 def _isotropic_footprint_model():
@@ -368,7 +373,9 @@ def test_bad_input_and_single_compilation(getkey):
         fs.run(getkey(), cfg, PARAMS, a.controls[:5], a.observations, state)
     fs.run(getkey(), cfg, PARAMS, a.controls, a.observations, state)
     before = fs._run_jit._cache_size()
-    fs.run(getkey(), cfg, PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations, state)
+    fs.run(
+        getkey(), cfg, PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations, state
+    )
     assert fs._run_jit._cache_size() == before
 
 
@@ -437,8 +444,9 @@ def test_shared_covariances_filter_like_per_particle_ones(version, map_copy, get
     key, k0 = getkey(), getkey()
     out = {}
     for cov in ("per_particle", "shared"):
-        cfg = fs.FastSLAMConfig(num_particles=32, num_landmarks=8, version=version, observation_model=om,
-                                map_copy=map_copy, covariance=cov)
+        cfg = fs.FastSLAMConfig(
+            num_particles=32, num_landmarks=8, version=version, observation_model=om, map_copy=map_copy, covariance=cov
+        )
         state = fs.init(k0, cfg, params, X0, jnp.asarray([0.02, 0.02, 0.01]))
         out[cov] = fs.run(key, cfg, params, u, obs, state)
     (pp, pp_trace), (sh, sh_trace) = out["per_particle"], out["shared"]
@@ -459,8 +467,9 @@ def test_shared_covariance_gradient_matches_finite_differences(getkey):
     with jax.enable_x64(True):
         u, obs = _robot_frame_sim(getkey(), 15, 0.05)
         obs = obs._replace(z=jnp.asarray(obs.z, jnp.float64))
-        cfg = fs.FastSLAMConfig(num_particles=16, num_landmarks=8, observation_model=_isotropic_footprint_model(),
-                                map_copy="in_place")
+        cfg = fs.FastSLAMConfig(
+            num_particles=16, num_landmarks=8, observation_model=_isotropic_footprint_model(), map_copy="in_place"
+        )
         assert cfg.shared_covariance
         motion_noise = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), MOTION)
         k_init, k_run = getkey(), getkey()
@@ -477,14 +486,17 @@ def test_shared_covariance_gradient_matches_finite_differences(getkey):
 
 
 def test_covariance_choice_resolves_and_bad_choices_are_refused(getkey):
-    """"auto" shares the covariances for HF_FOOTPRINT only; "shared" is refused for a model whose
+    """ "auto" shares the covariances for HF_FOOTPRINT only; "shared" is refused for a model whose
     covariance update reads the pose; a state of the other layout is refused."""
     assert fs.FastSLAMConfig(observation_model="hf_footprint").shared_covariance
     assert not fs.FastSLAMConfig(observation_model="hf_footprint", covariance="per_particle").shared_covariance
     assert not fs.FastSLAMConfig(observation_model="range_bearing").shared_covariance
     cfg = fs.FastSLAMConfig(num_landmarks=10, observation_model="hf_footprint")
     assert cfg.map_floats == 10 * 2
-    assert fs.FastSLAMConfig(num_landmarks=10, covariance="per_particle", observation_model="hf_footprint").map_floats == 60
+    assert (
+        fs.FastSLAMConfig(num_landmarks=10, covariance="per_particle", observation_model="hf_footprint").map_floats
+        == 60
+    )
     with pytest.raises(ValueError, match="pose_free_covariance"):
         fs.FastSLAMConfig(observation_model="range_bearing", covariance="shared")
     with pytest.raises(ValueError, match="covariance"):

@@ -12,7 +12,8 @@ trace's estimates are float64, and that the estimates are finite.
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp

@@ -55,7 +55,7 @@ def _params(landmarks=None):
     return grid.GridParams(p.motion, p.sensor, jnp.asarray(landmarks, jnp.float32))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _sim(seed=10):
     params = _params()
     controls = world.loop_controls(STEPS, 0.5, 0.21, 0.25)
@@ -69,7 +69,7 @@ def _angle_diff(a, b):
     return np.abs(np.angle(np.exp(1j * (np.asarray(a, np.float64) - np.asarray(b, np.float64)))))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _tracking(config):
     params, sim = _params(), _sim()
     _, trace = grid.run(config, params, sim.controls, sim.observations, grid.init(config, params, START))
@@ -123,7 +123,7 @@ def test_agrees_with_mcl_on_the_same_data():
 # --------------------------------------------------------------------------- (c) symmetric world
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _centres():
     return np.asarray(grid.cell_centres(CONFIG))
 
@@ -131,7 +131,9 @@ def _centres():
 def _mass_near(log_belief, pose, radius=0.5, heading_tol=0.35):
     cells = _centres()
     p = np.exp(np.asarray(log_belief, np.float64))
-    near = (np.linalg.norm(cells[..., :2] - pose[:2], axis=-1) < radius) & (_angle_diff(cells[..., 2], pose[2]) < heading_tol)
+    near = (np.linalg.norm(cells[..., :2] - pose[:2], axis=-1) < radius) & (
+        _angle_diff(cells[..., 2], pose[2]) < heading_tol
+    )
     return p[near].sum()
 
 
@@ -147,7 +149,9 @@ def test_identical_landmarks_in_a_symmetric_world_give_two_equal_modes():
     # the compilations of the other tests.
     padded = _params(np.concatenate([landmarks, np.full((4, 2), 50.0)]))
     controls = world.loop_controls(STEPS, 0.5, 0.21, 0.25)
-    sim = world.simulate(jax.random.PRNGKey(0), padded.landmarks, START, controls, padded.motion, padded.sensor, max_range=20.0)
+    sim = world.simulate(
+        jax.random.PRNGKey(0), padded.landmarks, START, controls, padded.motion, padded.sensor, max_range=20.0
+    )
     assert not np.any(sim.observations.mask[:, 4:]) and np.all(sim.observations.mask[:, :4].sum(1) >= 3)
     truth = np.asarray(sim.true_poses[-1])
     image = np.asarray([10.0 - truth[0], 10.0 - truth[1], truth[2] + math.pi])
@@ -265,7 +269,9 @@ def test_two_dimensional_kernel_has_the_motion_models_mean_and_cross_covariance(
         ths = -np.pi + (np.arange(TINY.ntheta) + 0.5) * TINY.cell_size[2]
         poses = jnp.asarray(np.stack([0 * ths, 0 * ths, ths], -1))
         moves = np.asarray(motion.velocity_mean(poses, control))[:, :2]
-        covs = np.asarray(jax.jit(jax.vmap(motion.velocity_process_cov, (0, None, None)))(poses, control, params.motion))
+        covs = np.asarray(
+            jax.jit(jax.vmap(motion.velocity_process_cov, (0, None, None)))(poses, control, params.motion)
+        )
     dx, dy, _ = TINY.cell_size
     r = TINY.kernel_radius
     off = np.arange(-r, r + 1, dtype=np.float64)
@@ -354,7 +360,9 @@ def test_run_equals_a_loop_of_steps_and_new_data_never_recompile(monkeypatch):
     monkeypatch.undo()
     s = state
     for t in range(3):
-        s, info = grid.step(s, CONFIG, params, sim.controls[t], jax.tree_util.tree_map(lambda x: x[t], sim.observations))
+        s, info = grid.step(
+            s, CONFIG, params, sim.controls[t], jax.tree_util.tree_map(lambda x: x[t], sim.observations)
+        )
         for got, want in zip(info, jax.tree_util.tree_map(lambda x: x[t], trace)):
             np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
 

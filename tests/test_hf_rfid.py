@@ -66,7 +66,9 @@ def test_frames_by_hand_and_inverse(getkey):
     np.testing.assert_allclose(hf_rfid.robot_frame(poses, hf_rfid.world_frame(poses, pts)), pts, atol=1e-5)
     # a rotation: distances to the robot are preserved
     np.testing.assert_allclose(
-        jnp.linalg.norm(hf_rfid.robot_frame(poses, pts), axis=-1), jnp.linalg.norm(pts - poses[:, :2], axis=-1), rtol=1e-5
+        jnp.linalg.norm(hf_rfid.robot_frame(poses, pts), axis=-1),
+        jnp.linalg.norm(pts - poses[:, :2], axis=-1),
+        rtol=1e-5,
     )
 
 
@@ -188,7 +190,9 @@ def test_validate_detections():
     )
     with pytest.raises(ValueError, match="readers"):
         hf_rfid.validate_detections(det, time_axis=False, num_readers=8)
-    hf_rfid.validate_detections(det._replace(readers=jnp.asarray([0, 1, 7, -1], jnp.int32)), time_axis=False, num_readers=8)
+    hf_rfid.validate_detections(
+        det._replace(readers=jnp.asarray([0, 1, 7, -1], jnp.int32)), time_axis=False, num_readers=8
+    )
     with pytest.raises(ValueError, match="same shape"):
         hf_rfid.validate_detections(det._replace(mask=jnp.ones(3, bool)), time_axis=False)
     with pytest.raises(ValueError, match="shape"):

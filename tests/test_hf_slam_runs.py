@@ -52,8 +52,8 @@ def test_robot_error_recovers_after_kidnapping():
     _, world, result = xp.run_once(jax.random.PRNGKey(0), "pf_slam", setting)
     err = 1000 * np.linalg.norm(np.asarray(result.estimates)[:, :2] - np.asarray(world.run.true_poses)[:, :2], axis=1)
     k = int(np.argmax(np.asarray(world.run.kidnapped)))
-    assert np.asarray(result.lost)[k:k + 20].any() and not np.asarray(result.lost)[:k].any()
-    before, after = err[k - 50:k].mean(), err[k + 50:k + 150].mean()
+    assert np.asarray(result.lost)[k : k + 20].any() and not np.asarray(result.lost)[:k].any()
+    before, after = err[k - 50 : k].mean(), err[k + 50 : k + 150].mean()
     assert after < 1.5 * before + 10.0 and after < 60.0, (before, after)
     dead = np.asarray(xp.dead_reckoning(world.run))
     assert np.linalg.norm(dead[k + 100, :2] - np.asarray(world.run.true_poses)[k + 100, :2]) > 1.0
@@ -63,15 +63,18 @@ def test_tag_error_falls_with_the_number_of_detections():
     """[W] Fig. 3.5 with PF-SLAM on a random trajectory (16 tags/m², 1.5 m square, 1500 steps, 3 seeds):
     the error of a tag's estimate after its n-th detection. Measured: 28 mm at n = 1,
     22 mm for n = 2–5, 18 mm for n = 6–15 and 16 mm from 16 on."""
-    setting = xp.HFSetting(density=16.0, carpet=(1.5, 1.5), trajectory="random", random_steps=1500,
-                           robot_particles=200, tag_particles=100)
+    setting = xp.HFSetting(
+        density=16.0, carpet=(1.5, 1.5), trajectory="random", random_steps=1500, robot_particles=200, tag_particles=100
+    )
     buckets = {"1": [], "2-5": [], "6-15": [], "16+": []}
     for seed in range(3):
         world = xp.make_world(jax.random.PRNGKey(seed), setting)
         config = pf_slam.PFSLAMConfig(200, 100, world.carpet.layout.num_tags)
         params = pf_slam.PFSLAMParams(setting.motion(), setting.sensor())
         state = pf_slam.init(jax.random.PRNGKey(9), config, params, world.run.start_pose)
-        _, trace = pf_slam.run(jax.random.PRNGKey(10 + seed), config, params, world.run.odometry, world.run.detections, state)
+        _, trace = pf_slam.run(
+            jax.random.PRNGKey(10 + seed), config, params, world.run.odometry, world.run.detections, state
+        )
         tags = np.asarray(tc.tag_positions(world.carpet))
         ids, counts, est = (np.asarray(a) for a in (trace.slot_ids, trace.slot_counts, trace.slot_estimates))
         valid = ids >= 0
@@ -111,13 +114,33 @@ def test_setting_refuses_bad_values():
 def test_cli_hf_slam_writes_a_plot(tmp_path):
     out = tmp_path / "run"
     proc = subprocess.run(
-        [sys.executable, "-m", "jaxnav.cli", "hf-slam", "--method", "ps_slam", "--trajectory", "random", "--steps", "60",
-         "--robot-particles", "50", "--tag-particles", "20", "--out", str(out)],
-        capture_output=True, text=True, timeout=600,
+        [
+            sys.executable,
+            "-m",
+            "jaxnav.cli",
+            "hf-slam",
+            "--method",
+            "ps_slam",
+            "--trajectory",
+            "random",
+            "--steps",
+            "60",
+            "--robot-particles",
+            "50",
+            "--tag-particles",
+            "20",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stderr
     assert "dr [mm]" in proc.stdout and (tmp_path / "run.png").stat().st_size > 10_000
-    bad = subprocess.run([sys.executable, "-m", "jaxnav.cli", "hf-slam", "--reader-mm", "0"], capture_output=True, text=True)
+    bad = subprocess.run(
+        [sys.executable, "-m", "jaxnav.cli", "hf-slam", "--reader-mm", "0"], capture_output=True, text=True
+    )
     assert bad.returncode == 2 and "--reader-mm" in bad.stderr
 
 
@@ -137,8 +160,9 @@ def test_run_with_a_donated_state_equals_run(method):
         config = ps_slam.PSSLAMConfig(50, 20, tags, lag=5)
         module, params = ps_slam, ps_slam.PSSLAMParams(motion, sensor, ps_slam.default_jitter(sensor))
     else:
-        config = fastslam.FastSLAMConfig(num_particles=50, num_landmarks=tags, motion_model="omni",
-                                         observation_model="hf_footprint")
+        config = fastslam.FastSLAMConfig(
+            num_particles=50, num_landmarks=tags, motion_model="omni", observation_model="hf_footprint"
+        )
         module, params = fastslam, fastslam.FastSLAMParams(motion, sensor)
         obs = hf_rfid.landmark_observations(obs, sensor)
     init = lambda: module.init(jax.random.PRNGKey(4), config, params, world.run.start_pose)  # noqa: E731

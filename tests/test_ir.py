@@ -124,8 +124,9 @@ def test_lattice_layout_of_fig_5_1():
     np.testing.assert_allclose(np.diff(grid[..., 1], axis=0), 0.8, atol=1e-6)
     # unique arrays at the centre of each square of four
     centres = pos[25:].reshape(4, 4, 2)
-    np.testing.assert_allclose(centres, 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:]),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        centres, 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:]), atol=1e-6
+    )
     # the 8 neighbours of every repeated emitter carry a different repeated ID
     codes = masks[:25].reshape(5, 5)
     for j, i in itertools.product(range(5), range(5)):

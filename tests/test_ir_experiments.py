@@ -20,7 +20,7 @@ import pytest
 from jaxnav.experiments import ir_positioning as xp
 from jaxnav.experiments import registry
 from jaxnav.models import ir
-from jaxnav.sim import ir_receiver, ir_world
+from jaxnav.sim import ir_world
 
 RUNS = 2
 NAMES = ("table-5.2", "table-5.3", "ir-failure", "ir-speeds", "ir-rotation", "ir-installation")
@@ -151,8 +151,10 @@ def test_installation_error_moves_the_simulated_emitters_only():
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("ir_experiments")
-    res = {name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS, progress=False)
-           for name in NAMES}
+    res = {
+        name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS, progress=False)
+        for name in NAMES
+    }
     return res, out
 
 

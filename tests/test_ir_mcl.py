@@ -50,14 +50,20 @@ def drives(layout, setup):
     out = {}
     for seed in SEEDS:
         for h in (1.2, 1.3):
-            sim = ir_world.simulate(jax.random.PRNGKey(seed), layout, main, DT,
-                                    ir_receiver.default_params(height=h))
+            sim = ir_world.simulate(jax.random.PRNGKey(seed), layout, main, DT, ir_receiver.default_params(height=h))
             state0 = ir_mcl.init(jax.random.PRNGKey(1000 + seed), config, params, area)
-            final, trace = ir_mcl.run(jax.random.PRNGKey(2000 + seed), config, params, sim.controls,
-                                      sim.detections, state0)
+            final, trace = ir_mcl.run(
+                jax.random.PRNGKey(2000 + seed), config, params, sim.controls, sim.detections, state0
+            )
             odo = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
-            out[seed, h] = dict(sim=sim, state0=state0, final=final, trace=trace,
-                                err=_err(trace.estimate, sim.true_poses), odo=_err(odo, sim.true_poses))
+            out[seed, h] = dict(
+                sim=sim,
+                state0=state0,
+                final=final,
+                trace=trace,
+                err=_err(trace.estimate, sim.true_poses),
+                odo=_err(odo, sim.true_poses),
+            )
     return out
 
 
@@ -166,8 +172,9 @@ def test_no_correction_before_the_first_unique_id(layout, setup):
     assert dist.max() <= float(params.detection_range) + 1e-4
 
     # the whole run (same keys through run): started exactly from t0 on, and it localises
-    _, trace = ir_mcl.run(key, config, params, sim.controls, sim.detections,
-                          ir_mcl.init(jax.random.PRNGKey(9), config, params, area))
+    _, trace = ir_mcl.run(
+        key, config, params, sim.controls, sim.detections, ir_mcl.init(jax.random.PRNGKey(9), config, params, area)
+    )
     np.testing.assert_array_equal(np.asarray(trace.started), np.arange(T) >= t0)
     assert int(np.argmax(np.asarray(trace.reinitialised))) == t0
     # step and run agree on the steps both ran (same keys, fold_in(key, t))
@@ -197,8 +204,7 @@ def test_a_corrupted_voltage_model_is_worse_negative_control(drives, layout, set
     d = drives[0, 1.2]
     bad = params._replace(voltage=params.voltage._replace(c0=params.voltage.c0 - 0.6))
     bad = bad._replace(detection_range=ir_mcl.model_range(bad.voltage))
-    _, trace = ir_mcl.run(jax.random.PRNGKey(2000), config, bad, d["sim"].controls, d["sim"].detections,
-                          d["state0"])
+    _, trace = ir_mcl.run(jax.random.PRNGKey(2000), config, bad, d["sim"].controls, d["sim"].detections, d["state0"])
     assert _err(trace.estimate, d["sim"].true_poses)[LATE].mean() > 1.5 * d["err"][LATE].mean()
 
 
@@ -222,16 +228,34 @@ def test_model_range_is_the_zero_of_eq_5_3():
         (lambda c, p, s, d: ir_mcl.default_params(c, p.layout, bogus=1.0), "unknown"),
         (lambda c, p, s, d: ir_mcl.init(jax.random.PRNGKey(0), c, p, (1.0, 0.0, 0.0, 1.0)), "area"),
         (lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s, c, p, jnp.zeros(3), d), "control"),
-        (lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s, c, p, jnp.zeros(4),
-                                        d._replace(mask=jnp.zeros(3, jnp.int32))), "detection.mask"),
-        (lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s, c, p, jnp.zeros(4),
-                                        d._replace(voltage=jnp.array([jnp.nan, 0.0]))), "voltage"),
-        (lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s, c, p, jnp.zeros(4), (d.mask, d.valid)),
-         "IRDetection"),
-        (lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s._replace(particles=s.particles[:10]), c, p,
-                                        jnp.zeros(4), d), "state.particles"),
-        (lambda c, p, s, d: ir_mcl.run(jax.random.PRNGKey(0), c, p, jnp.zeros((5, 4)),
-                                       jax.tree.map(lambda a: jnp.stack([a] * 4), d), s), "detections"),
+        (
+            lambda c, p, s, d: ir_mcl.step(
+                jax.random.PRNGKey(0), s, c, p, jnp.zeros(4), d._replace(mask=jnp.zeros(3, jnp.int32))
+            ),
+            "detection.mask",
+        ),
+        (
+            lambda c, p, s, d: ir_mcl.step(
+                jax.random.PRNGKey(0), s, c, p, jnp.zeros(4), d._replace(voltage=jnp.array([jnp.nan, 0.0]))
+            ),
+            "voltage",
+        ),
+        (
+            lambda c, p, s, d: ir_mcl.step(jax.random.PRNGKey(0), s, c, p, jnp.zeros(4), (d.mask, d.valid)),
+            "IRDetection",
+        ),
+        (
+            lambda c, p, s, d: ir_mcl.step(
+                jax.random.PRNGKey(0), s._replace(particles=s.particles[:10]), c, p, jnp.zeros(4), d
+            ),
+            "state.particles",
+        ),
+        (
+            lambda c, p, s, d: ir_mcl.run(
+                jax.random.PRNGKey(0), c, p, jnp.zeros((5, 4)), jax.tree.map(lambda a: jnp.stack([a] * 4), d), s
+            ),
+            "detections",
+        ),
         (lambda c, p, s, d: ir_world.simulate(jax.random.PRNGKey(0), p.layout, np.zeros((5, 2)), 0.1), "poses"),
         (lambda c, p, s, d: ir_world.polyline_path([[0.0, 0.0]], 0.2, 0.1, 10), "waypoints"),
         (lambda c, p, s, d: ir_world.polyline_path([[0.0, 0.0], [1.0, 0.0]], -0.2, 0.1, 10), "speed"),

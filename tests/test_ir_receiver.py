@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -81,8 +80,9 @@ def test_calibrated_level_is_close_to_eq_5_3(params):
     assert abs(float(rx.received_voltage(pose_r, layout, params)[0, 0])) < 1e-3
     # the level is the front end applied to the Lambertian / inverse-square amplitude
     a = _amplitude_np(e, params)
-    np.testing.assert_allclose(v, float(params.v_sat) * np.tanh(a / float(params.v_sat)) - float(params.v_offset),
-                               atol=2e-5)
+    np.testing.assert_allclose(
+        v, float(params.v_sat) * np.tanh(a / float(params.v_sat)) - float(params.v_offset), atol=2e-5
+    )
     # a height change moves the curve (what Table 5.3 is about): higher -> weaker
     v0 = [float(_volts(poses[:1], layout, params._replace(height=jnp.float32(h)))[0, 0, 0]) for h in (1.1, 1.2, 1.3)]
     assert v0[0] > v0[1] > v0[2] and v0[0] - v0[2] > 0.3
@@ -131,11 +131,13 @@ def test_fft_decodes_every_emitter_type_across_the_detection_range(params, sim):
     counts = dict(inside=0, beyond=0, edge_valid=0, wrong=0)
     for t, codes in enumerate(types):
         layout = ir.make_layout([[0.0, 0.0]], [codes])
-        e = np.concatenate([
-            np.linspace(0.0, 0.26, n_in),       # inside the range (~0.283 m)
-            rng.uniform(0.26, 0.305, n_edge),   # the edge: detection or not, never wrong
-            rng.uniform(0.305, 0.9, n_out),     # beyond
-        ])
+        e = np.concatenate(
+            [
+                np.linspace(0.0, 0.26, n_in),  # inside the range (~0.283 m)
+                rng.uniform(0.26, 0.305, n_edge),  # the edge: detection or not, never wrong
+                rng.uniform(0.305, 0.9, n_out),  # beyond
+            ]
+        )
         bearing = rng.uniform(-np.pi, np.pi, e.size)
         targets = np.stack([e * np.cos(bearing), e * np.sin(bearing)], 1)
         poses = _poses_at(0, targets, rng.uniform(-np.pi, np.pi, e.size), params)
@@ -144,10 +146,10 @@ def test_fft_decodes_every_emitter_type_across_the_detection_range(params, sim):
         mask = np.asarray(det.mask)
         want = ir.to_mask(codes)
         assert valid[:n_in, 0].all() and (mask[:n_in, 0] == want).all(), (codes, valid[:n_in, 0])
-        assert not valid[n_in + n_edge:, 0].any(), codes
+        assert not valid[n_in + n_edge :, 0].any(), codes
         counts["inside"] += n_in
         counts["beyond"] += n_out
-        counts["edge_valid"] += int(valid[n_in:n_in + n_edge, 0].sum())
+        counts["edge_valid"] += int(valid[n_in : n_in + n_edge, 0].sum())
         # receiver 1 is elsewhere: whatever it reports, it is never a wrong ID
         counts["wrong"] += int(np.sum(valid & (mask != want)))
         # the reported level is the noise-free V within the estimator's noise
@@ -162,8 +164,9 @@ def _random_windows(layout, params, sim, seed, n=1500):
     pos = np.asarray(layout.positions, np.float64)
     lo, hi = pos.min(0) - 0.4, pos.max(0) + 0.4
     rng = np.random.default_rng(seed)
-    poses = jnp.asarray(np.concatenate([rng.uniform(lo, hi, (n, 2)), rng.uniform(-np.pi, np.pi, (n, 1))], 1),
-                        jnp.float32)
+    poses = jnp.asarray(
+        np.concatenate([rng.uniform(lo, hi, (n, 2)), rng.uniform(-np.pi, np.pi, (n, 1))], 1), jnp.float32
+    )
     _, det = sim(_keys(seed, n), poses, layout, params)
     xy = _receiver_xy(poses, params)  # [n, R, 2]
     d = np.linalg.norm(xy[:, :, None, :] - pos[None, None], axis=-1)  # [n, R, E]
@@ -181,15 +184,21 @@ def _random_windows(layout, params, sim, seed, n=1500):
     low = np.where(own > 0, a1[..., None] - others, np.inf).min(-1)
     high = np.where(own > 0, a1[..., None] + others, 0.0).max(-1)
     stray = np.where(own > 0, 0.0, others).max(-1)
-    clear = ((low >= a_th + margin) & (high <= float(params.max_spread) * low)
-             & (stray <= np.minimum(float(params.guard) * a_th, float(params.rel_guard) * low) - margin))
+    clear = (
+        (low >= a_th + margin)
+        & (high <= float(params.max_spread) * low)
+        & (stray <= np.minimum(float(params.guard) * a_th, float(params.rel_guard) * low) - margin)
+    )
     return np.asarray(det.valid), np.asarray(det.mask), masks[nearest], d.min(-1), clear
 
 
 @pytest.mark.parametrize("name", ["experiment", "unique11", "lattice4x2"])
 def test_no_wrong_emitter_over_random_windows(params, sim, name):
-    layout = {"experiment": ir.experiment_layout(), "unique11": ir.unique11_layout(),
-              "lattice4x2": ir.lattice_layout(4, 2)}[name]
+    layout = {
+        "experiment": ir.experiment_layout(),
+        "unique11": ir.unique11_layout(),
+        "lattice4x2": ir.lattice_layout(4, 2),
+    }[name]
     assert layout.num_emitters == 11  # one compiled function serves all three
     seed = {"experiment": 11, "unique11": 12, "lattice4x2": 13}[name]
     valid, mask, nearest, d1, clear = _random_windows(layout, params, sim, seed=seed)
@@ -235,8 +244,16 @@ def test_refit_of_the_physical_sweep(params):
     noise_rms = np.sqrt(np.mean((v - clean) ** 2))
     fit, rms = ir.fit_voltage_model(e, v)
     curve = np.asarray(ir.expected_voltage(fit, e / 1000), np.float64)
-    print("refit of the physical sweep:", [float(c) for c in fit], "rms", float(rms), "noise", noise_rms,
-          "| [W] eq. 5.3:", list(W))
+    print(
+        "refit of the physical sweep:",
+        [float(c) for c in fit],
+        "rms",
+        float(rms),
+        "noise",
+        noise_rms,
+        "| [W] eq. 5.3:",
+        list(W),
+    )
     # the quadratic lies within the sweep's noise: residuals of the order of the noise
     # (the quadratic's own misfit to the physical curve is 0.02 V RMS, comparable)
     assert float(rms) == pytest.approx(np.sqrt(np.mean((curve - v) ** 2)), rel=1e-3)
@@ -282,8 +299,11 @@ def test_grad_of_simulated_voltage_matches_finite_differences():
             np.testing.assert_allclose(jac[:, i], fd, rtol=1e-5)
         assert np.all(jac[:, 0] < 0) and np.all(jac[:, 1] > 0)  # higher: fewer volts; more power: more
     # float32 gradients are finite too
-    g32 = jax.grad(lambda h: rx.received_voltage(
-        jnp.array([0.55, 0.33, 0.4]), layout, rx.default_params()._replace(height=h))[0, 0])(jnp.float32(1.2))
+    g32 = jax.grad(
+        lambda h: rx.received_voltage(jnp.array([0.55, 0.33, 0.4]), layout, rx.default_params()._replace(height=h))[
+            0, 0
+        ]
+    )(jnp.float32(1.2))
     assert np.isfinite(float(g32)) and float(g32) < 0
 
 
@@ -309,13 +329,19 @@ def test_grad_of_simulated_voltage_matches_finite_differences():
         (lambda: rx.default_params(colour="red"), "unknown receiver parameters"),
         (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), height=0.0), "height"),
         (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), code=10), "codebook"),
-        (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), offsets_mm=[-10.0]),
-         "offsets_mm"),
+        (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), offsets_mm=[-10.0]), "offsets_mm"),
         (lambda: rx.received_voltage(jnp.zeros(2), ir.experiment_layout(), rx.default_params()), "pose"),
         (lambda: rx.decode(jnp.zeros((2, 199)), rx.default_params()), "waveform"),
-        (lambda: rx.received_voltage(jnp.zeros(3), ir.EmitterLayout(
-            jnp.zeros((2, 2)), jnp.array([260, 260]), jnp.array([True, True]), jnp.array([29, 29])),
-            rx.default_params()), "duplicate unique IDs"),
+        (
+            lambda: rx.received_voltage(
+                jnp.zeros(3),
+                ir.EmitterLayout(
+                    jnp.zeros((2, 2)), jnp.array([260, 260]), jnp.array([True, True]), jnp.array([29, 29])
+                ),
+                rx.default_params(),
+            ),
+            "duplicate unique IDs",
+        ),
     ],
 )
 def test_bad_input_is_refused_with_a_clear_message(call, match):

@@ -119,6 +119,7 @@ def test_sequential_update_equals_joint_update():
         _, _, c, r = (jnp.asarray(m) for m in _model())
         z = jnp.asarray([0.7, -1.1])
         joint = kalman.ekf_update(mean, cov, z, lambda x: c @ x, r)
+
         def h(x, aux):
             row, _ = aux
             return (row @ x)[None]
@@ -126,7 +127,9 @@ def test_sequential_update_equals_joint_update():
         rows = (c, jnp.diag(r))
         g = kalman.Gaussian(mean, cov)
         for k in range(2):
-            res = kalman.ekf_update(g.mean, g.cov, z[k : k + 1], h, jnp.diag(r)[k][None, None], (rows[0][k], rows[1][k]))
+            res = kalman.ekf_update(
+                g.mean, g.cov, z[k : k + 1], h, jnp.diag(r)[k][None, None], (rows[0][k], rows[1][k])
+            )
             g = kalman.Gaussian(res.mean, res.cov)
         np.testing.assert_allclose(g.mean, joint.mean, rtol=1e-10)
         np.testing.assert_allclose(g.cov, joint.cov, rtol=1e-10, atol=1e-14)
@@ -205,7 +208,9 @@ def test_ukf_flags_failed_cholesky_without_nan():
     res = kalman.ukf_update(jnp.zeros(2), cov, jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights)
     assert bool(res.cholesky_failed)
     assert np.all(np.isfinite(res.mean)) and np.all(np.isfinite(res.cov))
-    ok = kalman.ukf_update(jnp.zeros(2), jnp.eye(2), jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights)
+    ok = kalman.ukf_update(
+        jnp.zeros(2), jnp.eye(2), jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights
+    )
     assert not bool(ok.cholesky_failed)
 
 

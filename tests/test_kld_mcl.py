@@ -34,7 +34,7 @@ def _setting(n_max=N_MAX, **kw):
     return config, params
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _global_run(seed):
     """Global localization in the demo's 10 m room (8 landmarks), uniform start, dark first steps."""
     config, params = _setting()
@@ -44,8 +44,17 @@ def _global_run(seed):
     obs = sim.observations._replace(mask=sim.observations.mask.at[:DARK].set(False))
     state = kld.init_uniform(k_init, config, params, (0.0, 10.0, 0.0, 10.0))
     final, trace = kld.run(k_run, config, params, controls, obs, state)
-    return dict(config=config, params=params, controls=controls, obs=obs, truth=sim.true_poses,
-                state=state, final=final, trace=trace, key=k_run)
+    return dict(
+        config=config,
+        params=params,
+        controls=controls,
+        obs=obs,
+        truth=sim.true_poses,
+        state=state,
+        final=final,
+        trace=trace,
+        key=k_run,
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -96,7 +105,9 @@ def test_inactive_slots_never_affect_anything():
     key = jax.random.PRNGKey(42)
     clean_state, clean_info = kld.step(key, state, config, params, control, obs)
     dirty_state, dirty_info = kld.step(key, dirty, config, params, control, obs)
-    for a, b in zip(jax.tree_util.tree_leaves((clean_state, clean_info)), jax.tree_util.tree_leaves((dirty_state, dirty_info))):
+    for a, b in zip(
+        jax.tree_util.tree_leaves((clean_state, clean_info)), jax.tree_util.tree_leaves((dirty_state, dirty_info))
+    ):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert np.all(np.isfinite(np.asarray(clean_info.estimate)))
     assert float(clean_info.ess) <= n
@@ -129,11 +140,13 @@ def test_count_is_foxs_stopping_rule_on_the_candidate_sequence(spread):
     from a tight cluster (k small, n = n_min) to a spread-out set (capped at N_max)."""
     config = kld.KLDMCLConfig(max_particles=2000, min_particles=50)
     rng = np.random.default_rng(int(spread * 1000))
-    poses = np.column_stack([
-        3.1 + spread * rng.standard_normal(2000),
-        -0.9 + spread * rng.standard_normal(2000),
-        np.pi - 0.2 + spread * rng.standard_normal(2000),  # straddles ±π
-    ]).astype(np.float32)
+    poses = np.column_stack(
+        [
+            3.1 + spread * rng.standard_normal(2000),
+            -0.9 + spread * rng.standard_normal(2000),
+            np.pi - 0.2 + spread * rng.standard_normal(2000),  # straddles ±π
+        ]
+    ).astype(np.float32)
     k_prefix = jax.jit(kld._occupied_bins_per_prefix, static_argnums=1)(jnp.asarray(poses), config.bin_size)
     n = int(kld._choose_count(k_prefix, config, jnp.float32))
     th = (poses[:, 2] + np.pi) % (2 * np.pi)  # bins on [-π, π) anchored at -π, as the filter
@@ -223,7 +236,9 @@ def test_no_retrace_between_calls_with_the_same_shapes(monkeypatch):
     assert len(traces) == 1
     cache = kld._run_jit._cache_size()
     params2 = params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1])))
-    state2 = kld.init(jax.random.PRNGKey(1), config, params2, START, jnp.full((3,), 0.2))._replace(num_active=jnp.int32(50))
+    state2 = kld.init(jax.random.PRNGKey(1), config, params2, START, jnp.full((3,), 0.2))._replace(
+        num_active=jnp.int32(50)
+    )
     kld.run(jax.random.PRNGKey(1), config, params2, r1["controls"][:6], jax.tree_util.tree_map(cut, r1["obs"]), state2)
     assert len(traces) == 1
     assert kld._run_jit._cache_size() == cache

@@ -27,16 +27,15 @@ def test_log_likelihood_is_the_gaussian_density_with_wrapped_bearing():
     z = jnp.asarray([[1.05, 0.01 - 2 * math.pi + 0.02]])  # same bearing, one turn off
     sd = jnp.asarray([0.1, 0.05])
     got = lm.log_likelihood(pose[None], lmk, z, jnp.asarray([True]), lm.RangeBearingNoise(sd))
-    want = (
-        -math.log(2 * math.pi * 0.1 * 0.05)
-        - 0.5 * ((0.05 / 0.1) ** 2 + (0.02 / 0.05) ** 2)
-    )
+    want = -math.log(2 * math.pi * 0.1 * 0.05) - 0.5 * ((0.05 / 0.1) ** 2 + (0.02 / 0.05) ** 2)
     np.testing.assert_allclose(got, [want], rtol=1e-4)
 
 
 def test_lookup_drops_ids_outside_the_map():
     lmap = jnp.arange(10.0).reshape(5, 2)
-    obs = lm.RangeBearingObs(jnp.asarray([0, 4, 5, -1, 2]), jnp.zeros((5, 2)), jnp.asarray([True, True, True, True, False]))
+    obs = lm.RangeBearingObs(
+        jnp.asarray([0, 4, 5, -1, 2]), jnp.zeros((5, 2)), jnp.asarray([True, True, True, True, False])
+    )
     pos, valid, ignored = lm.lookup(lmap, obs)
     np.testing.assert_array_equal(valid, [True, True, False, False, False])
     assert int(ignored) == 2
@@ -48,7 +47,9 @@ def test_log_likelihood_gradient():
     z = jnp.asarray([[3.1, 0.3], [4.0, 1.2]])
     valid = jnp.asarray([True, True])
     f = lambda pose, sd: lm.log_likelihood(pose, lmk, z, valid, lm.RangeBearingNoise(sd))  # noqa: E731
-    check_grads(f, (jnp.asarray([0.2, 0.1, 0.05]), jnp.asarray([0.2, 0.1])), order=1, modes=["rev"], atol=5e-2, rtol=5e-2)
+    check_grads(
+        f, (jnp.asarray([0.2, 0.1, 0.05]), jnp.asarray([0.2, 0.1])), order=1, modes=["rev"], atol=5e-2, rtol=5e-2
+    )
 
 
 def test_square_room_landmarks_w2_layout():

@@ -162,7 +162,14 @@ def test_float64_is_preserved():
         config, params = demo_setting(100)
         params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), params)
         controls = jnp.asarray(world.loop_controls(4), jnp.float64)
-        sim = world.simulate(jax.random.PRNGKey(0), params.landmarks, jnp.asarray(START, jnp.float64), controls, params.motion, params.sensor)
+        sim = world.simulate(
+            jax.random.PRNGKey(0),
+            params.landmarks,
+            jnp.asarray(START, jnp.float64),
+            controls,
+            params.motion,
+            params.sensor,
+        )
         state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START, jnp.float64), jnp.full((3,), 0.1))
         final, trace = mcl.run(jax.random.PRNGKey(2), config, params, sim.controls, sim.observations, state)
         assert final.particles.dtype == jnp.float64

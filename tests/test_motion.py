@@ -101,8 +101,22 @@ def test_omni_sample_noise_scales_with_dt():
 
 def test_means_are_differentiable():
     pose = jnp.asarray([0.5, -0.3, 0.2])
-    check_grads(lambda p: motion.velocity_mean(p, jnp.asarray([0.5, 0.3, 0.2])), (pose,), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
-    check_grads(lambda p: motion.omni_body_mean(p, jnp.asarray([0.5, 0.3, 0.2, 0.1])), (pose,), order=1, modes=["fwd", "rev"], atol=1e-2, rtol=1e-2)
+    check_grads(
+        lambda p: motion.velocity_mean(p, jnp.asarray([0.5, 0.3, 0.2])),
+        (pose,),
+        order=1,
+        modes=["fwd", "rev"],
+        atol=1e-2,
+        rtol=1e-2,
+    )
+    check_grads(
+        lambda p: motion.omni_body_mean(p, jnp.asarray([0.5, 0.3, 0.2, 0.1])),
+        (pose,),
+        order=1,
+        modes=["fwd", "rev"],
+        atol=1e-2,
+        rtol=1e-2,
+    )
 
 
 def test_unknown_model_name():
@@ -113,8 +127,18 @@ def test_unknown_model_name():
 @pytest.mark.parametrize(
     "name, control, noise",
     [
-        ("velocity", [0.8, 0.4, 0.5], motion.VelocityNoise(jnp.asarray([0.01, 0.005, 0.005, 0.01, 0.002, 0.002]), jnp.asarray([0.01, 0.02, 0.01]))),
-        ("odometry", [0.0, 0.0, 0.1, 0.3, 0.2, 0.5], motion.OdometryNoise(jnp.asarray([0.01, 0.01, 0.02, 0.01]), jnp.asarray([0.01, 0.01, 0.01]))),
+        (
+            "velocity",
+            [0.8, 0.4, 0.5],
+            motion.VelocityNoise(
+                jnp.asarray([0.01, 0.005, 0.005, 0.01, 0.002, 0.002]), jnp.asarray([0.01, 0.02, 0.01])
+            ),
+        ),
+        (
+            "odometry",
+            [0.0, 0.0, 0.1, 0.3, 0.2, 0.5],
+            motion.OdometryNoise(jnp.asarray([0.01, 0.01, 0.02, 0.01]), jnp.asarray([0.01, 0.01, 0.01])),
+        ),
         ("omni", [0.2, -0.1, 0.3, 0.5], motion.OmniNoise(jnp.asarray([0.05, 0.02, 0.04]))),
         ("omni_body", [0.2, -0.1, 0.3, 0.5], motion.OmniNoise(jnp.asarray([0.05, 0.02, 0.04]))),
     ],

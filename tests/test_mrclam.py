@@ -133,8 +133,12 @@ def test_synthetic_measurement_alignment_and_counts():
     dt = 0.1
     t = [
         0.02,  # nearest t0 itself -> outside the window
-        1.04, 1.06,  # -> steps ending at 1.0 (i = 9) and 1.1 (i = 10)
-        2.0, 2.0, 2.01, 2.02,  # four at the step ending at 2.0 (i = 19); K = 3 drops the last
+        1.04,
+        1.06,  # -> steps ending at 1.0 (i = 9) and 1.1 (i = 10)
+        2.0,
+        2.0,
+        2.01,
+        2.02,  # four at the step ending at 2.0 (i = 19); K = 3 drops the last
         2.5,  # robot (barcode 5) -> outlier
         2.6,  # unknown barcode 99 -> outlier
         1e4,  # after the last step -> outside
@@ -283,7 +287,9 @@ def test_sequence_shapes_and_dtypes(seq1, robot1):
     # the controls integrate the odometry: total turn = Σ ω_j·(overlap of reading j with the window)
     t, w = robot1.odometry.t, robot1.odometry.omega
     overlap = np.clip(np.minimum(t[1:], seq1.times[-1]) - t[:-1], 0.0, None)
-    np.testing.assert_allclose(np.sum(np.asarray(seq1.controls[:, 1], np.float64) * 0.02), np.sum(w[:-1] * overlap), atol=1e-3)
+    np.testing.assert_allclose(
+        np.sum(np.asarray(seq1.controls[:, 1], np.float64) * 0.02), np.sum(w[:-1] * overlap), atol=1e-3
+    )
 
 
 def test_capacity_drops_are_counted(robot1):
@@ -427,4 +433,3 @@ def test_dead_reckoning_matches_source(seq1, robot1, dr1, seconds, source):
     # · Δt ≈ 1e-5 rad); carried over ≤ 26 m of travel (0.086 m/s · 300 s) that is < 1 mm.
     assert abs(err32 - np.hypot(*(dr64[:2] - truth[:2]))) <= 2e-3
     assert abs(err32 - source) <= 0.005 + bound + 2e-3
-

@@ -46,7 +46,9 @@ def test_cli_mrclam_prints_table(capsys, tmp_path):
     from jaxnav.cli import main
 
     out = tmp_path / "mr"
-    code = main(["mrclam", "--robots", "2", "--duration", "20", "--algorithms", "dead_reckoning,ekf", "--out", str(out)])
+    code = main(
+        ["mrclam", "--robots", "2", "--duration", "20", "--algorithms", "dead_reckoning,ekf", "--out", str(out)]
+    )
     text = capsys.readouterr().out
     assert code == 0
     assert "| 2 | ekf |" in text and "| 2 | dead_reckoning |" in text

@@ -20,13 +20,20 @@ def test_notebook_executes(path, tmp_path, monkeypatch):
     nb = nbformat.read(path, as_version=4)
     needed = nb.metadata.get("jaxnav", {}).get("requires_data")
     if needed:
-        from jaxnav.io.mrclam import ENV_VAR
         import os
 
-        root = pathlib.Path(os.environ.get(ENV_VAR, pathlib.Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
+        from jaxnav.io.mrclam import ENV_VAR
+
+        root = pathlib.Path(
+            os.environ.get(ENV_VAR, pathlib.Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
+        )
         if not (root / needed).is_dir():
             pytest.skip(f"{path.name} needs {root / needed} (set {ENV_VAR})")
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
+    client = nbclient.NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    )
     client.execute()
-    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    errors = [
+        o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []) if o.get("output_type") == "error"
+    ]
     assert not errors

@@ -148,7 +148,14 @@ def test_two_readers_detecting_one_tag_update_it_once_with_both_detections():
     assert int(new_state.tags.counts[1]) == 1 and int(info.num_new) == 1
     np.testing.assert_array_equal(np.asarray(info.slot_ids), [1, 1, -1, -1])
     # Negative control: detected by reader 0 alone, only the overlap (40 % of the footprint) is in reader 3's.
-    single, _ = pf_slam.step(jax.random.PRNGKey(4), pf_slam.init(jax.random.PRNGKey(3), config, params, pose), config, params, STILL, _det([(1, 0)]))
+    single, _ = pf_slam.step(
+        jax.random.PRNGKey(4),
+        pf_slam.init(jax.random.PRNGKey(3), config, params, pose),
+        config,
+        params,
+        STILL,
+        _det([(1, 0)]),
+    )
     q = np.asarray(single.tags.particles[1])
     assert 0.25 < np.all(np.abs(q - off[3]) < 0.15, axis=1).mean() < 0.6
 
@@ -158,7 +165,9 @@ def test_ids_beyond_the_table_are_dropped_and_counted():
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
     before = jax.tree_util.tree_map(np.asarray, state.tags)
-    new_state, info = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(4, 0), (99, 1), (-1, 2)]))
+    new_state, info = pf_slam.step(
+        jax.random.PRNGKey(1), state, config, params, STILL, _det([(4, 0), (99, 1), (-1, 2)])
+    )
     assert int(info.num_ignored) == 3 and int(info.num_new) == 0
     for a, b in zip(jax.tree_util.tree_leaves(new_state.tags), jax.tree_util.tree_leaves(before)):
         np.testing.assert_array_equal(np.asarray(a), b)
@@ -243,7 +252,9 @@ def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
     np.testing.assert_array_equal(np.asarray(new_state.tags.estimates), before)
     # Negative control: without recovery the particles stay a metre away.
     config_off = _pf(i=200, j=4, recovery=False)
-    _, info_off = pf_slam.step(jax.random.PRNGKey(1), kidnapped_state(config_off), config_off, params, STILL, _det([(0, 0), (1, 7)]))
+    _, info_off = pf_slam.step(
+        jax.random.PRNGKey(1), kidnapped_state(config_off), config_off, params, STILL, _det([(0, 0), (1, 7)])
+    )
     assert not bool(info_off.lost)
     assert np.linalg.norm(np.asarray(info_off.estimate[:2]) - true_pose[:2]) > 0.9
 
@@ -269,7 +280,9 @@ def test_invalid_ps_config_and_params_are_refused():
         ps_slam.PSSLAMConfig(lag=0)
     config = _ps()
     with pytest.raises(ValueError, match="tag_jitter_sd"):
-        ps_slam.init(jax.random.PRNGKey(0), config, ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(-1.0)), np.zeros(3))
+        ps_slam.init(
+            jax.random.PRNGKey(0), config, ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(-1.0)), np.zeros(3)
+        )
     with pytest.raises(ValueError, match="half_width"):
         bad = SENSOR._replace(half_width=jnp.asarray(0.0))
         pf_slam.init(jax.random.PRNGKey(0), _pf(), pf_slam.PFSLAMParams(NO_NOISE, bad), np.zeros(3))
@@ -285,7 +298,14 @@ def test_bad_detections_and_capacity_are_refused():
     with pytest.raises(ValueError, match="readers"):
         pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, det)
     with pytest.raises(ValueError, match="same shape"):
-        pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, hf_rfid.TagDetections(jnp.zeros(3, jnp.int32), jnp.zeros(4, jnp.int32), jnp.zeros(4, bool)))
+        pf_slam.step(
+            jax.random.PRNGKey(1),
+            state,
+            config,
+            params,
+            STILL,
+            hf_rfid.TagDetections(jnp.zeros(3, jnp.int32), jnp.zeros(4, jnp.int32), jnp.zeros(4, bool)),
+        )
     with pytest.raises(ValueError, match="max_tags ≥ 11"):
         pf_slam.check_capacity(config, 11)
     with pytest.raises(ValueError, match="same number of steps"):

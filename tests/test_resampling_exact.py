@@ -25,7 +25,6 @@ import bisect
 import functools
 import itertools
 
-import hypothesis.extra.numpy as hnp
 import hypothesis.strategies as st
 import jax
 import jax.extend.core
@@ -47,7 +46,9 @@ SCHEMES = ("systematic", "stratified", "multinomial", "residual")
 def exact_integers(weights: np.ndarray) -> list[int]:
     """The (non-negative, finite) floats as exact integer multiples of one power of two ``2⁻ᴷ``, the
     smallest that holds them all; anything else is 0."""
-    ratios = [w.as_integer_ratio() if (w > 0 and np.isfinite(w)) else (0, 1) for w in np.asarray(weights, np.float64).tolist()]
+    ratios = [
+        w.as_integer_ratio() if (w > 0 and np.isfinite(w)) else (0, 1) for w in np.asarray(weights, np.float64).tolist()
+    ]
     k = max(den.bit_length() for _, den in ratios) - 1
     return [num << (k - den.bit_length() + 1) for num, den in ratios]
 
@@ -111,7 +112,9 @@ def assert_exact(scheme: str, key, weights: np.ndarray, m: int, ref: Reference |
     got = np.asarray(_resample(key, jnp.asarray(weights), num_samples=m, scheme=scheme))
     expected = reference_ancestors(scheme, key, weights, m, ref)
     bad = np.flatnonzero(got != expected)
-    assert bad.size == 0, f"{scheme}: {bad.size} of {m} ancestors differ, first at {bad[:5]}: {got[bad[:5]]} vs {expected[bad[:5]]}"
+    assert bad.size == 0, (
+        f"{scheme}: {bad.size} of {m} ancestors differ, first at {bad[:5]}: {got[bad[:5]]} vs {expected[bad[:5]]}"
+    )
     return got
 
 
@@ -154,7 +157,7 @@ def test_small_sets_equal_the_exact_reference_for_every_kind(scheme, n, m):
         assert np.all(np.diff(got) >= 0)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _large_case(kind: str, n: int, m: int) -> tuple[np.ndarray, Reference]:
     """Weights and their exact reference, built once and shared by the four schemes."""
     w = _weights(kind, n, seed=n % 97)
@@ -197,7 +200,8 @@ def test_log_weight_schemes_resample_exp_of_the_shifted_log_weights():
     for scheme, fn in R.SCHEMES.items():
         key = jax.random.PRNGKey(len(scheme))
         np.testing.assert_array_equal(
-            jax.jit(fn, static_argnums=2)(key, lw, 2999), _resample(key, jnp.exp(lw - jnp.max(lw)), num_samples=2999, scheme=scheme)
+            jax.jit(fn, static_argnums=2)(key, lw, 2999),
+            _resample(key, jnp.exp(lw - jnp.max(lw)), num_samples=2999, scheme=scheme),
         )
 
 
@@ -250,8 +254,10 @@ def test_inverse_cdf_equals_the_exact_reference_for_unsorted_points(n):
     got = np.asarray(jax.jit(R.inverse_cdf)(jnp.asarray(u), jnp.asarray(w)))
     ref = Reference(w, 1)
     # u = num/den exactly: u·Q < S_i  ⟺  S_i > ⌊num·Q/den⌋ (S_i is an integer)
-    expected = [bisect.bisect_right(ref.cdf, (num * ref.total) // den)
-                for num, den in (x.as_integer_ratio() for x in u.astype(np.float64).tolist())]
+    expected = [
+        bisect.bisect_right(ref.cdf, (num * ref.total) // den)
+        for num, den in (x.as_integer_ratio() for x in u.astype(np.float64).tolist())
+    ]
     np.testing.assert_array_equal(got, expected)
 
 

@@ -26,8 +26,15 @@ OFFSETS = np.array([0.3, 1.0, -2.0, 2.5], np.float32)
 
 def _world(seed=0):
     t = np.arange(T + 1) * 0.1
-    poses = np.stack([1.0 + 0.6 * np.sin(2 * np.pi * t / 15), 0.5 + 0.004 * np.arange(T + 1), np.full_like(t, 0.8),
-                      np.pi / 2 + 0.3 * np.sin(2 * np.pi * t / 10)], 1).astype(np.float32)
+    poses = np.stack(
+        [
+            1.0 + 0.6 * np.sin(2 * np.pi * t / 15),
+            0.5 + 0.004 * np.arange(T + 1),
+            np.full_like(t, 0.8),
+            np.pi / 2 + 0.3 * np.sin(2 * np.pi * t / 10),
+        ],
+        1,
+    ).astype(np.float32)
     rng = np.random.default_rng(seed)
     controls = np.diff(poses, axis=0) + rng.normal(0, [0.005, 0.005, 0.0, 0.005], (T, 4)).astype(np.float32)
     truth = jnp.asarray(poses[1:])
@@ -86,7 +93,9 @@ def test_step_loop_equals_run():
     final, trace = ra.run(key, cfg, params, controls[:8], short, s0)
     state = s0
     for t in range(8):
-        state, info = ra.step(jax.random.fold_in(key, t), state, cfg, params, controls[t], jax.tree.map(lambda x: x[t], short))
+        state, info = ra.step(
+            jax.random.fold_in(key, t), state, cfg, params, controls[t], jax.tree.map(lambda x: x[t], short)
+        )
         np.testing.assert_allclose(np.asarray(info.estimate), np.asarray(trace.estimate[t]), rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(np.asarray(state.particles), np.asarray(final.particles), rtol=1e-5, atol=1e-5)
 
@@ -99,7 +108,9 @@ def test_body_frame_odometry_turns_with_each_particle():
     state = ra.RFIDAnchorState(jnp.tile(parts, (50, 1)), jnp.full((100,), -np.log(100.0)))
     none = ra.AnchorReads(jnp.ones(4), jnp.zeros(4), jnp.full(4, LAM), jnp.zeros(4, bool))
     u = jnp.array([0.1, 0.0, 0.0, 0.0])
-    body, _ = ra.step(jax.random.PRNGKey(0), state, ra.RFIDAnchorConfig(num_particles=100, odometry_frame="body"), params, u, none)
+    body, _ = ra.step(
+        jax.random.PRNGKey(0), state, ra.RFIDAnchorConfig(num_particles=100, odometry_frame="body"), params, u, none
+    )
     np.testing.assert_allclose(np.asarray(body.particles[0, :2]), [1.0, 1.1], atol=1e-6)
     np.testing.assert_allclose(np.asarray(body.particles[1, :2]), [0.9, 1.0], atol=1e-6)
     world, _ = ra.step(jax.random.PRNGKey(0), state, ra.RFIDAnchorConfig(num_particles=100), params, u, none)

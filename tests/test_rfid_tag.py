@@ -27,8 +27,10 @@ LATE = slice(3 * T // 4, T)
 
 def _path():
     xs = np.linspace(-0.5, 2.5, T // 2)
-    legs = [np.stack([x, np.full_like(x, -0.3), np.full_like(x, h), np.full_like(x, np.pi / 2)], 1)
-            for x, h in ((xs, 0.5), (xs[::-1], 1.5))]
+    legs = [
+        np.stack([x, np.full_like(x, -0.3), np.full_like(x, h), np.full_like(x, np.pi / 2)], 1)
+        for x, h in ((xs, 0.5), (xs[::-1], 1.5))
+    ]
     return np.concatenate(legs).astype(np.float32)
 
 
@@ -41,7 +43,9 @@ def _reads(key, tag, offset, path=None, phase_sd=0.1):
     d = jnp.linalg.norm(path[:, :3] - jnp.asarray(tag), axis=1)
     ph = U.wrap_phase(-4 * jnp.pi * d / LAM + offset + phase_sd * jax.random.normal(k_phase, d.shape))
     n = path.shape[0]
-    return U.UHFReads(path[:, None, :], (a * g * g)[:, None], ph[:, None], jnp.full((n, 1), LAM), jnp.ones((n, 1), bool))
+    return U.UHFReads(
+        path[:, None, :], (a * g * g)[:, None], ph[:, None], jnp.full((n, 1), LAM), jnp.ones((n, 1), bool)
+    )
 
 
 def _err(trace, tag, dims=3):
@@ -168,7 +172,9 @@ def test_run_tags_vmaps_over_tags_like_separate_runs(params):
         k_g = jax.random.fold_in(key, g)
         s0 = rt.init(jax.random.fold_in(k_g, 2**31 - 1), cfg, params)
         _, alone = rt.run(k_g, cfg, params, reads[g], s0)
-        np.testing.assert_allclose(np.asarray(traces.estimate[g, 0]), np.asarray(alone.estimate[0]), rtol=1e-4, atol=1e-4)
+        np.testing.assert_allclose(
+            np.asarray(traces.estimate[g, 0]), np.asarray(alone.estimate[0]), rtol=1e-4, atol=1e-4
+        )
         assert np.sqrt(np.mean(_err(jax.tree.map(lambda x: x[g], traces), TAGS[g])[LATE] ** 2)) < 0.20, g
         assert np.sqrt(np.mean(_err(alone, TAGS[g])[LATE] ** 2)) < 0.20, g
 
@@ -197,7 +203,9 @@ def test_2d_keeps_the_known_height_and_is_more_accurate(params, traces):
     errs2, errs3 = [], []
     for seed in range(3):
         reads = _reads(jax.random.PRNGKey(seed), TAGS[0], OFFSETS[0])
-        final, tr = rt.run(jax.random.PRNGKey(200 + seed), cfg, p2, reads, rt.init(jax.random.PRNGKey(100 + seed), cfg, p2))
+        final, tr = rt.run(
+            jax.random.PRNGKey(200 + seed), cfg, p2, reads, rt.init(jax.random.PRNGKey(100 + seed), cfg, p2)
+        )
         np.testing.assert_allclose(np.asarray(final.particles[:, 2]), TAGS[0, 2])
         errs2.append(_err(tr, TAGS[0])[LATE].mean())
         errs3.append(_err(traces["combined", seed], TAGS[0])[LATE].mean())
@@ -232,13 +240,16 @@ def test_likelihood_gradients_are_finite(params):
     assert np.any(np.asarray(gx) != 0)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(dims=4), "dims"),
-    (dict(weighting="rss"), "weighting"),
-    (dict(ess_threshold=0.0), "ess_threshold"),
-    (dict(num_particles=0), "num_particles"),
-    (dict(refresh="roughen"), "refresh"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(dims=4), "dims"),
+        (dict(weighting="rss"), "weighting"),
+        (dict(ess_threshold=0.0), "ess_threshold"),
+        (dict(num_particles=0), "num_particles"),
+        (dict(refresh="roughen"), "refresh"),
+    ],
+)
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(ValueError, match=match):
         rt.RFIDTagConfig(**kwargs)

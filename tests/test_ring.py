@@ -48,7 +48,7 @@ def _push_all(ring, items):
 def _expected(items, capacity, last=None):
     """The list model: the last ``capacity`` items, oldest first."""
     kept = list(items)[-capacity:] if items else []
-    window = kept[-min(last, capacity):] if last is not None else kept
+    window = kept[-min(last, capacity) :] if last is not None else kept
     k = len(kept)
     ordered = np.zeros((capacity,) + ITEM_SHAPE)
     if k:

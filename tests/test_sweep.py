@@ -58,7 +58,9 @@ def test_an_interrupted_sweep_resumes_to_the_same_result(tmp_path):
     path = str(tmp_path / "runs.json")
     uninterrupted = sw.sweep(_cells(), 6, key, chunk_size=2, progress=False)
 
-    def stop_after_four_chunks(cell, done, calls=[]):
+    calls = []
+
+    def stop_after_four_chunks(cell, done):
         calls.append(cell)
         if len(calls) == 4:
             raise KeyboardInterrupt
@@ -111,10 +113,19 @@ def test_workers_change_nothing_but_the_speed(tmp_path):
     one, two = str(tmp_path / "one.json"), str(tmp_path / "two.json")
     serial = sw.sweep(_cells(), 7, key, one, chunk_size=2, progress=False, workers=1)
     seen = []
-    parallel = sw.sweep(_cells(), 7, key, two, chunk_size=2, progress=False, workers=3,
-                        on_chunk=lambda c, d: seen.append((c, d)))
-    assert seen == [("noisy", 2), ("noisy", 4), ("noisy", 6), ("noisy", 7),
-                    ("shifted", 2), ("shifted", 4), ("shifted", 6), ("shifted", 7)]
+    parallel = sw.sweep(
+        _cells(), 7, key, two, chunk_size=2, progress=False, workers=3, on_chunk=lambda c, d: seen.append((c, d))
+    )
+    assert seen == [
+        ("noisy", 2),
+        ("noisy", 4),
+        ("noisy", 6),
+        ("noisy", 7),
+        ("shifted", 2),
+        ("shifted", 4),
+        ("shifted", 6),
+        ("shifted", 7),
+    ]
     for cell in ("noisy", "shifted"):
         for field in ("a", "b"):
             np.testing.assert_array_equal(parallel[cell][field], serial[cell][field])

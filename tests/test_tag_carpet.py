@@ -189,7 +189,10 @@ def test_float32_lookup_differs_from_float64_only_within_rounding(getkey):
         for n, b in want ^ got:
             x, y, th = poses[t].astype(np.float64)
             d = pos[n] - [x, y]
-            e = np.array([math.cos(th) * d[0] + math.sin(th) * d[1], -math.sin(th) * d[0] + math.cos(th) * d[1]]) - off[b]
+            e = (
+                np.array([math.cos(th) * d[0] + math.sin(th) * d[1], -math.sin(th) * d[0] + math.cos(th) * d[1]])
+                - off[b]
+            )
             margin = 0.03 - np.max(np.abs(e))
             assert abs(margin) < 1e-5, (t, n, b, margin)
             flips += 1
@@ -255,7 +258,9 @@ def test_detection_capacity_bounds_the_detections(getkey):
     rng = np.random.default_rng(11)
     for pitch, side in ((0.1, 0.06), (0.1, 0.3), (0.1, 0.5), (0.25, 0.5), (0.5, 0.3)):
         r = _readers(side)
-        c = tc.make_carpet(getkey(), (2.0, 2.0), pitch=pitch, jitter=0.49 * pitch)  # the largest jitter packs tags closest
+        c = tc.make_carpet(
+            getkey(), (2.0, 2.0), pitch=pitch, jitter=0.49 * pitch
+        )  # the largest jitter packs tags closest
         cap = tc.detection_capacity(c.layout, side, r.offsets)
         pos = np.asarray(tc.tag_positions(c))
         most = 0
@@ -518,13 +523,17 @@ def test_soft_inside_tends_to_the_footprint_indicator(getkey):
         assert np.max(np.abs(soft - hard)[far]) < bound
     # on an edge midpoint the soft indicator is 1/2 (times ≈1 from the other three sides)
     np.testing.assert_allclose(tc.soft_inside(jnp.asarray([0.03, 0.0]), 0.03, 1e-4), 0.5, rtol=1e-4)
-    np.testing.assert_allclose(tc.log_soft_inside(e, 0.03, 1e-3), np.log(tc.soft_inside(e, 0.03, 1e-3)), rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(
+        tc.log_soft_inside(e, 0.03, 1e-3), np.log(tc.soft_inside(e, 0.03, 1e-3)), rtol=1e-4, atol=1e-6
+    )
 
 
 def _x64_run(getkey, side=0.3):
     c = tc.make_carpet(getkey(), (1.5, 1.5), density=16, jitter=0.02)
     r = _readers(side, jnp.float64)
-    start, u = tc.rectangle_controls(0.75, 0.75, speed=0.25, dt=0.1, laps=1, start=(0.375, 0.375), turn_rate=math.pi / 2)
+    start, u = tc.rectangle_controls(
+        0.75, 0.75, speed=0.25, dt=0.1, laps=1, start=(0.375, 0.375), turn_rate=math.pi / 2
+    )
     run = tc.simulate(getkey(), c, r, start, u, SD.astype(jnp.float64))
     return c, r, start, u, run
 
@@ -537,7 +546,9 @@ def test_grad_of_soft_likelihood_wrt_footprint_half_width(getkey):
         tau, window = 0.0075, 0.35  # window ≥ σ + 20τ for every σ below
         vg = jax.jit(
             jax.value_and_grad(
-                lambda hw: tc.soft_detection_log_likelihood(c, run.true_poses, run.detections, r.offsets, hw, tau, window)
+                lambda hw: tc.soft_detection_log_likelihood(
+                    c, run.true_poses, run.detections, r.offsets, hw, tau, window
+                )
             )
         )
         ll, g = (lambda hw: vg(hw)[0]), (lambda hw: vg(hw)[1])  # one compilation for values and gradients

@@ -22,10 +22,13 @@ IN_PLACE_PRIMITIVES = {"gather", "scatter"}
 
 def _setup(method: str, max_tags: int, lag: int = 20, parallel_slots=None):
     if method == "pf":
-        config = pf_slam.PFSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags, parallel_slots=parallel_slots)
+        config = pf_slam.PFSLAMConfig(
+            num_particles=500, num_tag_particles=100, max_tags=max_tags, parallel_slots=parallel_slots
+        )
         return pf_slam, config, pf_slam.PFSLAMParams(MOTION, SENSOR)
-    config = ps_slam.PSSLAMConfig(num_particles=500, num_tag_particles=100, max_tags=max_tags, lag=lag,
-                                  parallel_slots=parallel_slots)
+    config = ps_slam.PSSLAMConfig(
+        num_particles=500, num_tag_particles=100, max_tags=max_tags, lag=lag, parallel_slots=parallel_slots
+    )
     return ps_slam, config, ps_slam.PSSLAMParams(MOTION, SENSOR, ps_slam.default_jitter(SENSOR))
 
 
@@ -78,10 +81,14 @@ def test_compiled_step_updates_the_table_in_place(method, parallel_slots):
     them (a copy would cost O(max_tags) per step: the regression this guards against)."""
     module, config, params = _setup(method, MAX_TAGS, lag=2, parallel_slots=parallel_slots)
     state = jax.eval_shape(lambda: module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3)))
-    hlo = module._step_jit.lower(
-        jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3])
-    ).compile().as_text()
-    table_copies = [line for line in hlo.splitlines() if re.search(r"copy\(", line) and str(MAX_TAGS) in line.split("copy(")[0]]
+    hlo = (
+        module._step_jit.lower(jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3]))
+        .compile()
+        .as_text()
+    )
+    table_copies = [
+        line for line in hlo.splitlines() if re.search(r"copy\(", line) and str(MAX_TAGS) in line.split("copy(")[0]
+    ]
     assert table_copies == []
     header = hlo.splitlines()[0]
     assert header.count("may-alias") + header.count("must-alias") >= 2 + len(state.tags)
@@ -102,5 +109,7 @@ def test_a_100000_tag_map_runs_steps_and_updates_only_the_detected_rows():
 def test_ps_slam_100000_tag_map_runs_a_step():
     module, config, params = _setup("ps", 100_000, lag=4)
     state = module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3))
-    state, info = module.step(jax.random.PRNGKey(1), state, config, params, jnp.asarray([0.0, 0.0, 0.0, 0.1]), _detections([99_998], [2]))
+    state, info = module.step(
+        jax.random.PRNGKey(1), state, config, params, jnp.asarray([0.0, 0.0, 0.0, 0.1]), _detections([99_998], [2])
+    )
     assert int(state.tags.counts[99_998]) == 1 and int(info.num_new) == 1

@@ -76,7 +76,9 @@ def test_cumsum_is_exact_over_many_carries():
 def test_from_float_is_the_exact_floor(dtype):
     with jax.enable_x64(dtype == jnp.float64):
         rng = np.random.default_rng(6)
-        x = np.concatenate([rng.random(300) * 2.0 ** rng.integers(0, 64, 300), [0.0, 0.5, 1.0, 2.0**63, 2.0**64 - 2.0**40]])
+        x = np.concatenate(
+            [rng.random(300) * 2.0 ** rng.integers(0, 64, 300), [0.0, 0.5, 1.0, 2.0**63, 2.0**64 - 2.0**40]]
+        )
         x = x.astype(np.dtype(dtype))
         got = _ints(jax.jit(u64.from_float)(jnp.asarray(x)))
         assert got == [int(np.floor(v)) if v < 2.0**64 else 0 for v in x.astype(np.float64)]

@@ -47,8 +47,10 @@ def results(tmp_path_factory):
     xp.run_once.cache_clear()  # fresh cell functions: nothing compiled before this fixture is reused
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(rfid_tag, "run", counting)
-        res = {name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS,
-                                  progress=False) for name in NAMES}
+        res = {
+            name: registry.run(name, RUNS, jax.random.PRNGKey(0), str(out), quick=True, chunk_size=RUNS, progress=False)
+            for name in NAMES
+        }
     xp.run_once.cache_clear()
     return res, out, traces
 
@@ -107,10 +109,19 @@ def test_rows_and_thesis_values(results):
         assert r["method"] == "rssi" and r["setting"]["multipath"] == "strong" and r["setting"]["dims"] == 3
         assert r["final_rmse_m"]["paper"] is None and "λ/2" in r["final_rmse_m"]["paper_note"]
     paper = {(r["setting"]["multipath"], r["method"]): r["final_rmse_m"]["paper"] for r in res["fig-5.5"]["rows"]}
-    assert paper == {("light", "rssi"): 0.20, ("light", "phase"): 0.20, ("light", "combined"): 0.20,
-                     ("strong", "rssi"): 0.60, ("strong", "phase"): 0.20, ("strong", "combined"): 0.40}
-    assert all("< 0.20 m" in r["final_rmse_m"]["paper_note"] for r in res["fig-5.5"]["rows"]
-               if r["setting"]["multipath"] == "light")
+    assert paper == {
+        ("light", "rssi"): 0.20,
+        ("light", "phase"): 0.20,
+        ("light", "combined"): 0.20,
+        ("strong", "rssi"): 0.60,
+        ("strong", "phase"): 0.20,
+        ("strong", "combined"): 0.40,
+    }
+    assert all(
+        "< 0.20 m" in r["final_rmse_m"]["paper_note"]
+        for r in res["fig-5.5"]["rows"]
+        if r["setting"]["multipath"] == "light"
+    )
     text = registry.get("fig-5.5").render(res["fig-5.5"])
     assert "0.60" in text and "0.40" in text  # [A]'s values are printed beside ours
 
@@ -158,13 +169,22 @@ def test_fig_5_6_cells_summary_and_2d_error(tmp_path):
     shapes = jax.eval_shape(cells[0].fn, jax.random.PRNGKey(0), *cells[0].args)
     rng = np.random.default_rng(2)
     raw = {c.id: {k: rng.uniform(0.01, 1.0, (RUNS,) + v.shape) for k, v in shapes.items()} for c in cells}
-    result = {"experiment": exp.name, "title": exp.title, "runs": RUNS, "quick": True, **exp.summarize(raw, cells, True)}
+    result = {
+        "experiment": exp.name,
+        "title": exp.title,
+        "runs": RUNS,
+        "quick": True,
+        **exp.summarize(raw, cells, True),
+    }
     json.dumps(result)
     assert [(r["setting"]["multipath"], r["method"]) for r in result["rows"]] == [
-        (m, w) for m in ("light", "strong") for w in xp.METHODS]
+        (m, w) for m in ("light", "strong") for w in xp.METHODS
+    ]
     _check_rows(result)
-    assert all(r["final_rmse_m"]["paper"] is None and "lower than the corresponding 3D" in r["final_rmse_m"]["paper_note"]
-               for r in result["rows"])
+    assert all(
+        r["final_rmse_m"]["paper"] is None and "lower than the corresponding 3D" in r["final_rmse_m"]["paper_note"]
+        for r in result["rows"]
+    )
     assert "strong, 2D" in exp.render(result) and "| light, 2D" in exp.markdown(result)
     exp.plot(result, str(tmp_path / "f.png"))
     assert (tmp_path / "f.png").stat().st_size > 10_000

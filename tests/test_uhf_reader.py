@@ -207,8 +207,13 @@ def test_no_walls_reduces_exactly_to_the_light_model(getkey):
     seqs = R.image_sequences(2)
     assert len(seqs) == 17
     re, im, dist = R._composite_jit(
-        jnp.asarray(PASS), jnp.asarray(PASS_TAG, jnp.float32), jnp.float32(LAM), U.DEFAULT_ANTENNA,
-        jax.tree_util.tree_map(jnp.asarray, mp0.room), seqs, None,
+        jnp.asarray(PASS),
+        jnp.asarray(PASS_TAG, jnp.float32),
+        jnp.float32(LAM),
+        U.DEFAULT_ANTENNA,
+        jax.tree_util.tree_map(jnp.asarray, mp0.room),
+        seqs,
+        None,
     )
     np.testing.assert_array_equal(np.asarray(re), 1.0)
     np.testing.assert_array_equal(np.asarray(im), 0.0)
@@ -218,7 +223,8 @@ def test_no_walls_reduces_exactly_to_the_light_model(getkey):
     # expected RSSI: the model's mean power
     np.testing.assert_allclose(
         R.expected_rssi(PASS, PASS_TAG, mp0),
-        U.mean_power(PASS, PASS_TAG, U.DEFAULT_CHANNEL, mp0.gamma), rtol=1e-6,
+        U.mean_power(PASS, PASS_TAG, U.DEFAULT_CHANNEL, mp0.gamma),
+        rtol=1e-6,
     )
     # reads: a light preset with the strong preset's (k, θ, σ_φ) and the same key gives the same reads
     light_same = R.LIGHT_MULTIPATH._replace(gamma=mp0.gamma, phase_sigma=mp0.phase_sigma)
@@ -240,7 +246,9 @@ def test_strong_multipath_rssi_is_multimodal_along_a_line():
     n_light, n_strong = _local_maxima(light), _local_maxima(strong)
     cc = R.composite_channel(line, tag, "strong")
     fade_db = 20 * np.log10(np.asarray(cc.power_ratio))  # |h_mp|⁴ in dB
-    print(f"local maxima: light {n_light}, strong {n_strong}; |h_mp|^4 from {fade_db.min():.1f} to {fade_db.max():.1f} dB")
+    print(
+        f"local maxima: light {n_light}, strong {n_strong}; |h_mp|^4 from {fade_db.min():.1f} to {fade_db.max():.1f} dB"
+    )
     assert n_light == 1
     assert n_strong >= 3
     assert fade_db.max() - fade_db.min() > 10.0  # fading dips: more than 10 dB of wall ripple
@@ -315,8 +323,9 @@ def test_output_shapes_masks_and_hopping(getkey):
     """Tag in front (≤ 1.9 m) always read; tag 2.5 m behind (back lobe) never: forward link below −18 dBm."""
     tags = np.array([[1.0, 2.0, 1.0], [1.0, -2.0, 1.0]])
     lams = np.array([0.170, 0.173, 0.176])
-    reads = R.simulate_reads(getkey(), _two_tag_path(), tags, np.array([0.3, 4.0]), multipath="light",
-                             reads_per_step=J, wavelengths=lams)
+    reads = R.simulate_reads(
+        getkey(), _two_tag_path(), tags, np.array([0.3, 4.0]), multipath="light", reads_per_step=J, wavelengths=lams
+    )
     U.validate_reads(reads)
     assert reads.reader.shape == (2, T, J, 4)
     for f in (reads.rssi, reads.phase, reads.wavelength, reads.mask):
@@ -364,11 +373,13 @@ def test_a_tags_reads_do_not_depend_on_the_other_tags(getkey):
     key = getkey()
     both = R.simulate_reads(key, path, tags, off, multipath="light", reads_per_step=J)
     # the other tag moved and given another offset: tag 1's reads are unchanged
-    moved = R.simulate_reads(key, path, np.array([[1.9, 2.9, 0.2], tags[1]]), np.array([-1.0, 2.5]),
-                             multipath="light", reads_per_step=J)
+    moved = R.simulate_reads(
+        key, path, np.array([[1.9, 2.9, 0.2], tags[1]]), np.array([-1.0, 2.5]), multipath="light", reads_per_step=J
+    )
     # the order reversed, with the ids following the tags
-    swapped = R.simulate_reads(key, path, tags[::-1], off[::-1], multipath="light", reads_per_step=J,
-                               tag_ids=np.array([1, 0]))
+    swapped = R.simulate_reads(
+        key, path, tags[::-1], off[::-1], multipath="light", reads_per_step=J, tag_ids=np.array([1, 0])
+    )
     for fb, fm, fs in zip(both, moved, swapped):
         np.testing.assert_array_equal(np.asarray(fb)[1], np.asarray(fm)[1])
         np.testing.assert_array_equal(np.asarray(fb)[1], np.asarray(fs)[0])

@@ -47,8 +47,16 @@ def test_antenna_gain_in_each_lobe():
     psi = 0.7
     cases = []
     for sign in (1.0, -1.0):
-        for frac, want in ((0.0, p.g0), (0.5, p.g0), (0.95, p.g0), (1.05, p.g_sll), (1.5, p.g_sll),
-                           (1.95, p.g_sll), (2.05, p.g_bll), (3.0, p.g_bll)):
+        for frac, want in (
+            (0.0, p.g0),
+            (0.5, p.g0),
+            (0.95, p.g0),
+            (1.05, p.g_sll),
+            (1.5, p.g_sll),
+            (1.95, p.g_sll),
+            (2.05, p.g_bll),
+            (3.0, p.g_bll),
+        ):
             cases.append((_dir(psi + sign * frac * ps, 0.0), want))  # azimuth offsets
             cases.append((_dir(psi, sign * frac * ps), want))  # elevation offsets
     cases.append((_dir(psi + math.pi, 0.0), p.g_bll))  # straight behind
@@ -123,7 +131,9 @@ def test_two_ray_path_loss_both_sides_of_the_breakpoint():
         np.testing.assert_allclose(U.two_ray_breakpoint(hr, ht, lam), dc, rtol=1e-14)
         near = np.array([0.05, 0.3, 1.0, 0.999 * dc])
         far = np.array([dc, 1.001 * dc, 2 * dc, 50.0])
-        np.testing.assert_allclose(U.two_ray_path_loss(near, hr, ht, lam), (lam / (4 * math.pi * near)) ** 2, rtol=1e-13)
+        np.testing.assert_allclose(
+            U.two_ray_path_loss(near, hr, ht, lam), (lam / (4 * math.pi * near)) ** 2, rtol=1e-13
+        )
         np.testing.assert_allclose(U.two_ray_path_loss(far, hr, ht, lam), (hr * ht / far**2) ** 2, rtol=1e-13)
         # continuity: both formulas equal (λ²/(16π² h_R h_T))² at D_c, so a jump of relative
         # size ε in D changes L by ≈ (2 + 4)ε; with ε = 1e-6 the step must stay below 1e-5
@@ -170,7 +180,12 @@ def test_received_power_written_out():
 
 def _thesis_w_rssi(y, a, k, theta):
     """[A] §4.3.1 second line, written out: 1/(2θ^k Γ(k) a^{k/2}) y^{(k−2)/2} exp(−√y/(θ√a))."""
-    return 1.0 / (2.0 * theta**k * math.gamma(k) * a ** (k / 2)) * y ** ((k - 2) / 2) * np.exp(-np.sqrt(y) / (theta * np.sqrt(a)))
+    return (
+        1.0
+        / (2.0 * theta**k * math.gamma(k) * a ** (k / 2))
+        * y ** ((k - 2) / 2)
+        * np.exp(-np.sqrt(y) / (theta * np.sqrt(a)))
+    )
 
 
 def _app_c(z, a, k, theta):
@@ -310,7 +325,7 @@ def test_phase_weight_symmetric_across_the_wrap():
     np.testing.assert_allclose(lw[2], stats.norm.logpdf(lam / 4, 0, sigma), atol=1e-5)
     # negative control: the raw phase difference (the metric [A] §4.2.3 criticises) ranks the
     # two near-identical reads far apart
-    naive = -(np.array([below, above]) * lam / (4 * np.pi)) ** 2 / (2 * sigma**2)
+    naive = -((np.array([below, above]) * lam / (4 * np.pi)) ** 2) / (2 * sigma**2)
     assert abs(naive[0] - naive[1]) > 5.0
 
 
@@ -392,13 +407,15 @@ def test_gradients_are_finite_at_singular_points():
     params = U.DEFAULT_CHANNEL
     reader = jnp.array([0.0, 0.0, 1.0, 0.0])
     dc = float(U.two_ray_breakpoint(1.0, 1.0, params.wavelength))
-    tags = jnp.array([
-        [0.0, 0.0, 1.0],  # at the reader: D = 0
-        [2.0, 0.0, 1.0],  # on the boresight: |d × b| = 0
-        [-2.0, 0.0, 1.0],  # straight behind
-        [dc, 0.0, 1.0],  # on the two-ray breakpoint
-        [0.0, 0.0, 0.0],  # straight below, on the ground: h_T = 0, so a = 0
-    ])
+    tags = jnp.array(
+        [
+            [0.0, 0.0, 1.0],  # at the reader: D = 0
+            [2.0, 0.0, 1.0],  # on the boresight: |d × b| = 0
+            [-2.0, 0.0, 1.0],  # straight behind
+            [dc, 0.0, 1.0],  # on the two-ray breakpoint
+            [0.0, 0.0, 0.0],  # straight below, on the ground: h_T = 0, so a = 0
+        ]
+    )
     for soft in (None, 0.05):
         f = lambda x: U.log_w_rssi(1e-9, U.power_scale(reader, x, params, softness=soft), 2.0, 0.5)  # noqa: E731
         vals = jax.jit(jax.vmap(f))(tags)
@@ -517,7 +534,8 @@ def test_fallback_to_default_and_masks():
     # masked buffer = the compacted valid reads
     mask = jnp.arange(N_BUF) < 40
     np.testing.assert_allclose(
-        U.estimate_gamma_closed_form(jnp.where(mask, y, junk), a, mask), U.estimate_gamma_closed_form(y[:40], a[:40]),
+        U.estimate_gamma_closed_form(jnp.where(mask, y, junk), a, mask),
+        U.estimate_gamma_closed_form(y[:40], a[:40]),
         rtol=1e-5,
     )
     # a custom default and threshold
@@ -596,8 +614,9 @@ def test_read_log_likelihood_equals_the_public_formulas():
     (λ/4πσ)²·π·4e-4 ≈ 2e-3 (λ = 0.33 m, σ = 0.02 m); atol is 5e-3 per read, rtol covers log a."""
     rng = np.random.default_rng(7)
     m, j = 64, 5
-    reader = np.stack([rng.uniform(-1, 3, j), rng.uniform(-1, 3, j), rng.uniform(0.3, 2.0, j),
-                       rng.uniform(-np.pi, np.pi, j)], -1)
+    reader = np.stack(
+        [rng.uniform(-1, 3, j), rng.uniform(-1, 3, j), rng.uniform(0.3, 2.0, j), rng.uniform(-np.pi, np.pi, j)], -1
+    )
     tags = np.stack([rng.uniform(-2, 4, m), rng.uniform(-2, 4, m), rng.uniform(0.1, 2.0, m)], -1)
     tags[:4] = reader[0, :3] + np.array([[30.0, 0.5, 0.0], [0.0, 25.0, 0.2], [-40.0, 1.0, 0.0], [1.0, -35.0, 0.1]])
     tags[:4, 2] = np.clip(tags[:4, 2], 0.1, None)
@@ -608,17 +627,30 @@ def test_read_log_likelihood_equals_the_public_formulas():
     mask = np.array([True, True, True, False, True])
     gamma, sigma = U.GammaParams(3.0, 0.4), 0.02
     with jax.enable_x64(True):
-        a = U.power_scale(jnp.asarray(reader)[None], jnp.asarray(tags)[:, None], U.DEFAULT_CHANNEL, wavelength=jnp.asarray(lam))
+        a = U.power_scale(
+            jnp.asarray(reader)[None], jnp.asarray(tags)[:, None], U.DEFAULT_CHANNEL, wavelength=jnp.asarray(lam)
+        )
         lo_d = np.linalg.norm(tags[:, None, :] - reader[None, :, :3], axis=-1)
         pred = U.phase(jnp.asarray(lo_d), jnp.asarray(lam), jnp.asarray(offset)[:, None])
-        want = (np.asarray(U.log_w_rssi(jnp.asarray(rssi), a, gamma.k, gamma.theta))
-                + np.asarray(U.log_w_phase(jnp.asarray(phi), pred, sigma, jnp.asarray(lam))))
+        want = np.asarray(U.log_w_rssi(jnp.asarray(rssi), a, gamma.k, gamma.theta)) + np.asarray(
+            U.log_w_phase(jnp.asarray(phi), pred, sigma, jnp.asarray(lam))
+        )
         want = np.where(mask, want, 0.0).sum(-1)
     gain = np.asarray(U.antenna_gain(jnp.asarray(tags[:, None] - reader[None, :, :3]), jnp.asarray(reader[:, 3])))
     assert len(np.unique(np.round(gain, 6))) == 3  # all three lobes are exercised
     assert np.any(lo_d > np.asarray(U.two_ray_breakpoint(reader[None, :, 2], tags[:, None, 2], lam)))
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     channel, gam = U.read_model_float32(U.DEFAULT_CHANNEL, gamma)
-    got = U.read_log_likelihood(f32(reader)[None], f32(tags)[:, None], f32(offset)[:, None], f32(rssi), f32(phi),
-                                f32(lam), jnp.asarray(mask), channel, gam, f32(sigma))
+    got = U.read_log_likelihood(
+        f32(reader)[None],
+        f32(tags)[:, None],
+        f32(offset)[:, None],
+        f32(rssi),
+        f32(phi),
+        f32(lam),
+        jnp.asarray(mask),
+        channel,
+        gam,
+        f32(sigma),
+    )
     np.testing.assert_allclose(np.asarray(got), want, rtol=2e-4, atol=5e-3 * j)

@@ -283,9 +283,25 @@ def test_wrap_angle_range():
     for dtype in (np.float32, np.float64):
         with jax.enable_x64(dtype == np.float64):
             pi = dtype(np.pi)
-            ends = np.array([pi, -pi, np.nextafter(pi, dtype(0)), np.nextafter(-pi, dtype(0)), np.nextafter(pi, dtype(4)),
-                             np.nextafter(-pi, dtype(-4)), 3 * pi, -3 * pi, 0.0, 20.0, -20.0], dtype)
-            e = np.asarray(jax.jit(_W.wrap_columns, static_argnums=1)(jnp.asarray(ends)[:, None], (0,)), np.float64)[:, 0]
+            ends = np.array(
+                [
+                    pi,
+                    -pi,
+                    np.nextafter(pi, dtype(0)),
+                    np.nextafter(-pi, dtype(0)),
+                    np.nextafter(pi, dtype(4)),
+                    np.nextafter(-pi, dtype(-4)),
+                    3 * pi,
+                    -3 * pi,
+                    0.0,
+                    20.0,
+                    -20.0,
+                ],
+                dtype,
+            )
+            e = np.asarray(jax.jit(_W.wrap_columns, static_argnums=1)(jnp.asarray(ends)[:, None], (0,)), np.float64)[
+                :, 0
+            ]
             ulp = float(np.spacing(pi))
             assert np.all(e >= -np.pi - 2 * ulp) and np.all(e <= np.pi + 2 * ulp), e
             np.testing.assert_allclose(np.exp(1j * e), np.exp(1j * ends.astype(np.float64)), atol=100 * ulp)

@@ -114,7 +114,11 @@ class NumpyFastSLAM:
             x += eps[0] * self.dtype.type(self.pose_sd[0])
             y += eps[1] * self.dtype.type(self.pose_sd[1])
             th = wrap(th + eps[2] * self.dtype.type(self.pose_sd[2]))
-        self.x, self.y, self.th = x.astype(self.dtype, copy=False), y.astype(self.dtype, copy=False), th.astype(self.dtype, copy=False)
+        self.x, self.y, self.th = (
+            x.astype(self.dtype, copy=False),
+            y.astype(self.dtype, copy=False),
+            th.astype(self.dtype, copy=False),
+        )
 
     def update(self, ids, z, mask=None):
         """EKF-update landmark ``ids[k]`` of every particle with ``z[k]``, slot after slot.

@@ -36,7 +36,7 @@ given; the harness times a subset of the batch and scales it.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -148,8 +148,18 @@ class NumpyMCL:
         """Log-likelihood added to the log-weights; returns ``(W̄, log_norm, ess)``."""
         z = np.asarray(z, self.dtype)
         ll = _loglik_into(
-            self.x, self.y, self.th, self.lmx, self.lmy, z[:, 0:1], z[:, 1:2],
-            self.inv_sd_r, self.inv_sd_b, self.log_norm, self.buf_a, self.buf_b,
+            self.x,
+            self.y,
+            self.th,
+            self.lmx,
+            self.lmy,
+            z[:, 0:1],
+            z[:, 1:2],
+            self.inv_sd_r,
+            self.inv_sd_b,
+            self.log_norm,
+            self.buf_a,
+            self.buf_b,
         )
         ll += self.lw
         return _normalise(ll)
@@ -264,8 +274,18 @@ def make_particles_fk(particles_module, x0, controls, zs, landmarks, pose_sd, se
         def logG(self, t, xp, x):
             z = zs[t]
             ll = _loglik_into(
-                x[:, 0], x[:, 1], x[:, 2], lmx, lmy, z[:, 0:1], z[:, 1:2],
-                inv_sd_r, inv_sd_b, log_norm, self.buf_a, self.buf_b,
+                x[:, 0],
+                x[:, 1],
+                x[:, 2],
+                lmx,
+                lmy,
+                z[:, 0:1],
+                z[:, 1:2],
+                inv_sd_r,
+                inv_sd_b,
+                log_norm,
+                self.buf_a,
+                self.buf_b,
             )
             # float64 weights: particles' numba inverse_cdf has no bounds check and
             # a float32 running sum can stop short of the last uniform.

@@ -103,9 +103,18 @@ def model_from_params(params) -> UHFModel:
     f = lambda x: float(np.asarray(x))  # noqa: E731
     ch, ant = params.channel, params.channel.antenna
     return UHFModel(
-        f(ch.tx_power), f(ch.tag_efficiency), f(ch.tag_gain), f(ant.g0), f(ant.g_sll), f(ant.g_bll), f(ant.phi_s),
-        f(params.gamma.k), f(params.gamma.theta), f(params.phase_sigma),
-        tuple(float(v) for v in np.asarray(params.box_lo)), tuple(float(v) for v in np.asarray(params.box_hi)),
+        f(ch.tx_power),
+        f(ch.tag_efficiency),
+        f(ch.tag_gain),
+        f(ant.g0),
+        f(ant.g_sll),
+        f(ant.g_bll),
+        f(ant.phi_s),
+        f(params.gamma.k),
+        f(params.gamma.theta),
+        f(params.phase_sigma),
+        tuple(float(v) for v in np.asarray(params.box_lo)),
+        tuple(float(v) for v in np.asarray(params.box_hi)),
     )
 
 
@@ -284,13 +293,20 @@ class NumpyRFIDTag:
         dtype: float dtype (float32, jaxnav's).
     """
 
-    def __init__(self, particles, model: UHFModel, log_weights=None, ess_threshold: float = 0.1, seed: int = 0,
-                 dtype=DEFAULT_DTYPE):
+    def __init__(
+        self,
+        particles,
+        model: UHFModel,
+        log_weights=None,
+        ess_threshold: float = 0.1,
+        seed: int = 0,
+        dtype=DEFAULT_DTYPE,
+    ):
         self.dtype = np.dtype(dtype)
         self.f = self.dtype.type
         self.p = np.ascontiguousarray(np.asarray(particles, dtype).T)  # [4, M]
         self.n = n = self.p.shape[1]
-        self.lw = (np.full(n, -math.log(n), dtype) if log_weights is None else np.array(log_weights, dtype))
+        self.lw = np.full(n, -math.log(n), dtype) if log_weights is None else np.array(log_weights, dtype)
         self.model = model
         self.ess_threshold = float(ess_threshold)
         self.rng = np.random.default_rng(seed)
@@ -304,8 +320,9 @@ class NumpyRFIDTag:
         self.p = np.ascontiguousarray(np.asarray(particles, self.dtype).T)
         if self.p.shape[1] != self.n:
             raise ValueError(f"reset needs {self.n} particles, got {self.p.shape[1]}")
-        self.lw = (np.full(self.n, -math.log(self.n), self.dtype) if log_weights is None
-                   else np.array(log_weights, self.dtype))
+        self.lw = (
+            np.full(self.n, -math.log(self.n), self.dtype) if log_weights is None else np.array(log_weights, self.dtype)
+        )
         self.rng = np.random.default_rng(seed)
         self.resamplings = 0
 

@@ -42,7 +42,8 @@ loops) are shared with S2 (:mod:`benchmarks.workloads.s2_hf_map_size`).
 from __future__ import annotations
 
 import time
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -82,11 +83,13 @@ def setting(name: str):
     from jaxnav.experiments.hf_slam import HFSetting
 
     if name == "fig3.6":
-        return HFSetting(density=100.0, reader_side=0.06, laps=1, robot_particles=500, tag_particles=TAG_PARTICLES,
-                         lag=LAG)
+        return HFSetting(
+            density=100.0, reader_side=0.06, laps=1, robot_particles=500, tag_particles=TAG_PARTICLES, lag=LAG
+        )
     if name == "fig4.1a":
-        return HFSetting(density=4.0, reader_side=0.3, laps=1, robot_particles=500, tag_particles=TAG_PARTICLES,
-                         lag=LAG)
+        return HFSetting(
+            density=4.0, reader_side=0.3, laps=1, robot_particles=500, tag_particles=TAG_PARTICLES, lag=LAG
+        )
     raise ValueError(f"unknown S1 setting {name!r}; expected one of {SETTINGS}")
 
 
@@ -117,8 +120,16 @@ def world(name: str):
     return _WORLDS[name]
 
 
-def filter_setup(method: str, robot_particles: int, max_tags: int, sensor, motion, lag: int = LAG,
-                 tag_particles: int = TAG_PARTICLES, smoother_jitter=None):
+def filter_setup(
+    method: str,
+    robot_particles: int,
+    max_tags: int,
+    sensor,
+    motion,
+    lag: int = LAG,
+    tag_particles: int = TAG_PARTICLES,
+    smoother_jitter=None,
+):
     """``(module, config, params)`` of ``method`` as :func:`jaxnav.experiments.hf_slam.run_method` builds them.
 
     ``max_tags`` is the map capacity (PF/PS ``max_tags``, FastSLAM ``num_landmarks``).
@@ -130,11 +141,18 @@ def filter_setup(method: str, robot_particles: int, max_tags: int, sensor, motio
         return pf_slam, config, pf_slam.PFSLAMParams(motion, sensor)
     if method == "ps_slam":
         config = ps_slam.PSSLAMConfig(robot_particles, tag_particles, max_tags, lag=lag)
-        jitter = ps_slam.default_jitter(sensor) if smoother_jitter is None else jnp.asarray(smoother_jitter, jnp.float32)
+        jitter = (
+            ps_slam.default_jitter(sensor) if smoother_jitter is None else jnp.asarray(smoother_jitter, jnp.float32)
+        )
         return ps_slam, config, ps_slam.PSSLAMParams(motion, sensor, jitter)
     if method == "fastslam":
-        config = fastslam.FastSLAMConfig(num_particles=robot_particles, num_landmarks=max_tags, version=1,
-                                         motion_model="omni", observation_model="hf_footprint")
+        config = fastslam.FastSLAMConfig(
+            num_particles=robot_particles,
+            num_landmarks=max_tags,
+            version=1,
+            motion_model="omni",
+            observation_model="hf_footprint",
+        )
         return fastslam, config, fastslam.FastSLAMParams(motion, sensor)
     raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
 
@@ -160,8 +178,9 @@ def _deleted(tree) -> bool:
     return any(getattr(leaf, "is_deleted", lambda: False)() for leaf in jax.tree_util.tree_leaves(tree))
 
 
-def time_per_call(module, config, params, state, inputs, *, steps: int, budget_s: float,
-                  min_steps: int = 5) -> tuple[Timing, Any]:
+def time_per_call(
+    module, config, params, state, inputs, *, steps: int, budget_s: float, min_steps: int = 5
+) -> tuple[Timing, Any]:
     """Median wall time of ``module.step`` (public: validation + donated jitted step) per update.
 
     ``state`` is donated and carried forward; the trajectory ``inputs``
@@ -190,8 +209,20 @@ def time_per_call(module, config, params, state, inputs, *, steps: int, budget_s
     return Timing.from_samples(samples), state
 
 
-def time_in_scan(module, config, params, state, controls, observations, *, repeats: int, budget_s: float,
-                 warmup: int = 1, min_repeats: int = 2, make_state: Callable[[], Any] | None = None) -> Timing:
+def time_in_scan(
+    module,
+    config,
+    params,
+    state,
+    controls,
+    observations,
+    *,
+    repeats: int,
+    budget_s: float,
+    warmup: int = 1,
+    min_repeats: int = 2,
+    make_state: Callable[[], Any] | None = None,
+) -> Timing:
     """Wall time of one ``module.run`` over the trajectory.
 
     Without ``make_state`` every call filters ``state`` (not donated: ``run`` copies it into its
@@ -216,10 +247,27 @@ def time_in_scan(module, config, params, state, controls, observations, *, repea
     return Timing.from_samples(samples)
 
 
-def measure(ctx: Context, workload: str, size: dict, method: str, mode: str, *, module, config, params,
-            make_state: Callable[[], Any], controls, observations, compile_key: tuple, per_call_steps: int,
-            per_call_budget_s: float, scan_repeats: int, scan_budget_s: float, donate_scan: bool = False,
-            **extra: Any) -> dict:
+def measure(
+    ctx: Context,
+    workload: str,
+    size: dict,
+    method: str,
+    mode: str,
+    *,
+    module,
+    config,
+    params,
+    make_state: Callable[[], Any],
+    controls,
+    observations,
+    compile_key: tuple,
+    per_call_steps: int,
+    per_call_budget_s: float,
+    scan_repeats: int,
+    scan_budget_s: float,
+    donate_scan: bool = False,
+    **extra: Any,
+) -> dict:
     """One row: ``method`` in ``mode`` on the given trajectory (``controls [T, 4]``, ``observations`` [T, K]).
 
     ``donate_scan``: ``in_scan`` calls ``run(..., donate_state=True)`` on a fresh state per call
@@ -229,38 +277,72 @@ def measure(ctx: Context, workload: str, size: dict, method: str, mode: str, *, 
     if mode == "per_call":
         inputs = step_inputs(controls, observations)
         keys, ctrls, obs = inputs
-        compile_s = ctx.compile_s(compile_key + ("step",), module._step_jit, keys[0], state, config, params,
-                                  ctrls[0], obs[0])
-        timing, last = time_per_call(module, config, params, state, inputs, steps=per_call_steps,
-                                     budget_s=per_call_budget_s)
+        compile_s = ctx.compile_s(
+            compile_key + ("step",), module._step_jit, keys[0], state, config, params, ctrls[0], obs[0]
+        )
+        timing, last = time_per_call(
+            module, config, params, state, inputs, steps=per_call_steps, budget_s=per_call_budget_s
+        )
         del last
-        return make_row(workload, "jaxnav", size, "per_call", timing, compile_s=compile_s, method=method,
-                        steps=timing.repeats, dtype="float32",
-                        note=f"public {module.__name__.rsplit('.', 1)[-1]}.step per update (host validation + "
-                             "donated jitted step, state carried forward), block_until_ready each step",
-                        **extra)
+        return make_row(
+            workload,
+            "jaxnav",
+            size,
+            "per_call",
+            timing,
+            compile_s=compile_s,
+            method=method,
+            steps=timing.repeats,
+            dtype="float32",
+            note=f"public {module.__name__.rsplit('.', 1)[-1]}.step per update (host validation + "
+            "donated jitted step, state carried forward), block_until_ready each step",
+            **extra,
+        )
     key = jax.random.key(RUN_KEY)
     run_jit = module._run_jit_donated if donate_scan else module._run_jit
-    compile_s = ctx.compile_s(compile_key + ("run", donate_scan), run_jit, key, config, params, controls,
-                              observations, state)
+    compile_s = ctx.compile_s(
+        compile_key + ("run", donate_scan), run_jit, key, config, params, controls, observations, state
+    )
     if donate_scan:
         del state
-    timing = time_in_scan(module, config, params, None if donate_scan else state, controls, observations,
-                          repeats=scan_repeats, budget_s=scan_budget_s, make_state=make_state if donate_scan else None)
-    name = module.__name__.rsplit('.', 1)[-1]
+    timing = time_in_scan(
+        module,
+        config,
+        params,
+        None if donate_scan else state,
+        controls,
+        observations,
+        repeats=scan_repeats,
+        budget_s=scan_budget_s,
+        make_state=make_state if donate_scan else None,
+    )
+    name = module.__name__.rsplit(".", 1)[-1]
     call = f"{name}.run(..., donate_state=True) on a fresh state" if donate_scan else f"{name}.run"
-    return make_row(workload, "jaxnav", size, "in_scan", None, median_s=timing.median_s / t_len,
-                    compile_s=compile_s, min_s=timing.min_s / t_len, repeats=timing.repeats, steps=t_len,
-                    method=method, dtype="float32",
-                    note=f"{call} over {t_len} steps (one lax.scan), time / {t_len}", **extra)
+    return make_row(
+        workload,
+        "jaxnav",
+        size,
+        "in_scan",
+        None,
+        median_s=timing.median_s / t_len,
+        compile_s=compile_s,
+        min_s=timing.min_s / t_len,
+        repeats=timing.repeats,
+        steps=t_len,
+        method=method,
+        dtype="float32",
+        note=f"{call} over {t_len} steps (one lax.scan), time / {t_len}",
+        **extra,
+    )
 
 
 # ---------------------------------------------------------------------------
 # S1
 
 
-def run_rows(ctx: Context, size: dict, methods: Sequence[str] = METHODS, modes: Sequence[str] = MODES,
-             steps: int | None = None) -> list[dict]:
+def run_rows(
+    ctx: Context, size: dict, methods: Sequence[str] = METHODS, modes: Sequence[str] = MODES, steps: int | None = None
+) -> list[dict]:
     """S1 rows of one size (``methods`` × ``modes``); ``steps`` truncates the lap (tests only)."""
     i, tags = int(size["robot_particles"]), int(size["tags"])
     name = setting_for_tags(tags)
@@ -272,8 +354,13 @@ def run_rows(ctx: Context, size: dict, methods: Sequence[str] = METHODS, modes: 
         controls = controls[:steps]
         detections = jax.tree_util.tree_map(lambda a: a[:steps], detections)
     det_rate = float(jnp.mean(jnp.sum(detections.mask, axis=1)))
-    extra = dict(setting=name, slots=int(detections.ids.shape[1]),
-                 detections_per_step=det_rate, density_tags_per_m2=s.density, reader_side_m=s.reader_side)
+    extra = dict(
+        setting=name,
+        slots=int(detections.ids.shape[1]),
+        detections_per_step=det_rate,
+        density_tags_per_m2=s.density,
+        reader_side_m=s.reader_side,
+    )
     rows = []
     for method in methods:
         module, config, params = filter_setup(method, i, tags, sensor, motion, lag=s.lag)
@@ -288,13 +375,36 @@ def run_rows(ctx: Context, size: dict, methods: Sequence[str] = METHODS, modes: 
             return module.init(jax.random.key(INIT_KEY), config, params, w.run.start_pose)
 
         for mode in modes:
-            def one(method=method, mode=mode, module=module, config=config, params=params, obs=obs,
-                    make_state=make_state, more=more):
-                return measure(ctx, NAME, size, method, mode, module=module, config=config, params=params,
-                               make_state=make_state, controls=controls, observations=obs,
-                               compile_key=(NAME, name, method, i, int(controls.shape[0])),
-                               per_call_steps=PER_CALL_STEPS * ctx.reps(2), per_call_budget_s=PER_CALL_BUDGET_S,
-                               scan_repeats=ctx.reps(5), scan_budget_s=SCAN_BUDGET_S, **more)
+
+            def one(
+                method=method,
+                mode=mode,
+                module=module,
+                config=config,
+                params=params,
+                obs=obs,
+                make_state=make_state,
+                more=more,
+            ):
+                return measure(
+                    ctx,
+                    NAME,
+                    size,
+                    method,
+                    mode,
+                    module=module,
+                    config=config,
+                    params=params,
+                    make_state=make_state,
+                    controls=controls,
+                    observations=obs,
+                    compile_key=(NAME, name, method, i, int(controls.shape[0])),
+                    per_call_steps=PER_CALL_STEPS * ctx.reps(2),
+                    per_call_budget_s=PER_CALL_BUDGET_S,
+                    scan_repeats=ctx.reps(5),
+                    scan_budget_s=SCAN_BUDGET_S,
+                    **more,
+                )
 
             for r in guarded(ctx, NAME, "jaxnav", size, mode, one):
                 r.setdefault("method", method)
@@ -315,7 +425,7 @@ register(
     Workload(
         name=NAME,
         title="S1 HF-RFID SLAM time per update vs robot particles ([W] Fig. 3.6: 100 tags/m², 60 mm readers; "
-              "Fig. 4.1a: 4 tags/m², 300 mm readers)",
+        "Fig. 4.1a: 4 tags/m², 300 mm readers)",
         sizes=_sizes(PARTICLES),
         quick_sizes=_sizes(QUICK_PARTICLES),
         run=run,

@@ -86,8 +86,17 @@ PER_CALL_BUDGET_S = 20.0
 SCAN_BUDGET_S = 30.0
 MAP_KEY = 3
 
-__all__ = ["lattice_shape", "S2World", "make_world", "sensor", "motion", "prefilled_state", "run_rows", "run",
-           "ratio_notes"]
+__all__ = [
+    "lattice_shape",
+    "S2World",
+    "make_world",
+    "sensor",
+    "motion",
+    "prefilled_state",
+    "run_rows",
+    "run",
+    "ratio_notes",
+]
 
 
 def sensor():
@@ -170,9 +179,10 @@ def prefilled_state(method: str, module, config, params, w: S2World):
     """The initial state with every tag of ``w`` already mapped (module docstring)."""
     n = int(w.positions.shape[0])
     if method == "fastslam":
-        covs = jnp.broadcast_to((TAG_SD ** 2) * jnp.eye(2, dtype=jnp.float32), (n, 2, 2))
-        return module.init(jax.random.key(INIT_KEY), config, params, w.start_pose, landmark_means=w.positions,
-                           landmark_covs=covs)
+        covs = jnp.broadcast_to((TAG_SD**2) * jnp.eye(2, dtype=jnp.float32), (n, 2, 2))
+        return module.init(
+            jax.random.key(INIT_KEY), config, params, w.start_pose, landmark_means=w.positions, landmark_covs=covs
+        )
     i, j = config.num_particles, config.num_tag_particles
     poses = jnp.tile(w.start_pose[None, :], (i, 1))
     log_w = jnp.full((i,), -np.log(i), jnp.float32)
@@ -225,9 +235,14 @@ def ratio_notes(rows: list[dict]) -> list[str]:
     out = []
     for method in METHODS:
         for mode in ("per_call", "in_scan"):
-            sel = {int(r["size"]["tags"]): r["median_s"] for r in rows
-                   if r.get("workload") == NAME and r.get("method") == method and r.get("mode") == mode
-                   and r.get("median_s") is not None}
+            sel = {
+                int(r["size"]["tags"]): r["median_s"]
+                for r in rows
+                if r.get("workload") == NAME
+                and r.get("method") == method
+                and r.get("mode") == mode
+                and r.get("median_s") is not None
+            }
             if min(TAGS) in sel and len(sel) > 1:
                 big = max(sel)
                 target = " (target ≤ 1.5)" if method != "fastslam" else " (grows with the map)"
@@ -235,8 +250,9 @@ def ratio_notes(rows: list[dict]) -> list[str]:
     return out
 
 
-def run_rows(ctx: Context, size: dict, methods=METHODS, modes=("per_call", "in_scan"), steps: int | None = None
-             ) -> list[dict]:
+def run_rows(
+    ctx: Context, size: dict, methods=METHODS, modes=("per_call", "in_scan"), steps: int | None = None
+) -> list[dict]:
     """S2 rows of one size; ``steps`` shortens the trajectory (tests only)."""
     i, n = int(size["robot_particles"]), int(size["tags"])
     w = _world(n)
@@ -248,8 +264,9 @@ def run_rows(ctx: Context, size: dict, methods=METHODS, modes=("per_call", "in_s
         t_scan = SCAN_STEPS[method] if steps is None else min(steps, SCAN_STEPS[method])
         t_len = T if steps is None else steps
         obs_all = method_observations(method, detections, sens)
-        extra: dict[str, Any] = dict(detections_per_step=len(DETECTING_READERS),
-                                     slots=len(DETECTING_READERS), reader_side_m=READER_SIDE)
+        extra: dict[str, Any] = dict(
+            detections_per_step=len(DETECTING_READERS), slots=len(DETECTING_READERS), reader_side_m=READER_SIDE
+        )
         if method != "fastslam":
             extra["tag_particles"] = TAG_PARTICLES
         if method == "ps_slam":
@@ -263,19 +280,43 @@ def run_rows(ctx: Context, size: dict, methods=METHODS, modes=("per_call", "in_s
             ctrl = controls[:steps_here]
             obs = jax.tree_util.tree_map(lambda a: a[:steps_here], obs_all)
 
-            def one(method=method, mode=mode, module=module, config=config, params=params, ctrl=ctrl, obs=obs,
-                    make_state=make_state, extra=extra):
+            def one(
+                method=method,
+                mode=mode,
+                module=module,
+                config=config,
+                params=params,
+                ctrl=ctrl,
+                obs=obs,
+                make_state=make_state,
+                extra=extra,
+            ):
                 more = dict(extra)
                 if mode == "in_scan":
                     state = make_state()
                     more["state_bytes"] = _nbytes(state)
                     more["state_copy_s"] = _copy_time(state)
                     del state
-                return measure(ctx, NAME, size, method, mode, module=module, config=config, params=params,
-                              make_state=make_state, controls=ctrl, observations=obs,
-                              compile_key=(NAME, method, i, n, int(ctrl.shape[0])),
-                              per_call_steps=PER_CALL_STEPS * ctx.reps(2), per_call_budget_s=PER_CALL_BUDGET_S,
-                              scan_repeats=ctx.reps(3), scan_budget_s=SCAN_BUDGET_S, donate_scan=True, **more)
+                return measure(
+                    ctx,
+                    NAME,
+                    size,
+                    method,
+                    mode,
+                    module=module,
+                    config=config,
+                    params=params,
+                    make_state=make_state,
+                    controls=ctrl,
+                    observations=obs,
+                    compile_key=(NAME, method, i, n, int(ctrl.shape[0])),
+                    per_call_steps=PER_CALL_STEPS * ctx.reps(2),
+                    per_call_budget_s=PER_CALL_BUDGET_S,
+                    scan_repeats=ctx.reps(3),
+                    scan_budget_s=SCAN_BUDGET_S,
+                    donate_scan=True,
+                    **more,
+                )
 
             for r in guarded(ctx, NAME, "jaxnav", size, mode, one):
                 r.setdefault("method", method)
@@ -283,8 +324,11 @@ def run_rows(ctx: Context, size: dict, methods=METHODS, modes=("per_call", "in_s
                 rows.append(r)
     wl = REGISTRY.get(NAME)
     if wl is not None and n == int(wl.sizes_for(ctx.quick)[-1]["tags"]):
-        measured = [{"workload": NAME, "method": m, "mode": mo, "size": {"tags": t}, "median_s": v}
-                    for (m, mo), tab in _MEDIANS.items() for t, v in tab.items()]
+        measured = [
+            {"workload": NAME, "method": m, "mode": mo, "size": {"tags": t}, "median_s": v}
+            for (m, mo), tab in _MEDIANS.items()
+            for t, v in tab.items()
+        ]
         for line in ratio_notes(measured):
             ctx.note(line)
     return rows
@@ -298,7 +342,7 @@ register(
     Workload(
         name=NAME,
         title="S2 HF-RFID SLAM time per update vs tags already mapped ([W] Figs. 3.8, 4.1b): 500 robot particles, "
-              "4 detections per step",
+        "4 detections per step",
         sizes=[{"robot_particles": ROBOT_PARTICLES, "tags": n} for n in TAGS],
         quick_sizes=[{"robot_particles": ROBOT_PARTICLES, "tags": n} for n in QUICK_TAGS],
         run=run,

@@ -91,8 +91,10 @@ NUM_TAGS = 10
 SIZES_N = (10**4, 10**5, 10**6)
 TAG_N = 10**4
 TAG_COUNTS = (1, 10)
-FLOOR_DOC = ("24 N bytes per step: particles read once (4 float32 columns, 16 N) + log-weights read and "
-             "written (8 N); resampling steps not counted; / measured bandwidth")
+FLOOR_DOC = (
+    "24 N bytes per step: particles read once (4 float32 columns, 16 N) + log-weights read and "
+    "written (8 N); resampling steps not counted; / measured bandwidth"
+)
 
 
 def floor_bytes(n: int) -> int:
@@ -171,10 +173,23 @@ def _jaxnav_run(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dic
     _, trace = fn()
     t = time_calls(fn, repeats=ctx.reps(3 if _big(n) else 10), warmup=0, budget_s=60.0, min_repeats=2)
     _CACHE[("run", n)] = t.median_s / t_steps
-    return make_row(NAME, "jaxnav", size, "in_scan", None, median_s=t.median_s / t_steps, compile_s=compile_s,
-                    floor_s=floor_s, min_s=t.min_s / t_steps, repeats=t.repeats, steps=t_steps, reads_per_step=J,
-                    resamplings=int(np.asarray(trace.resampled).sum()), dtype="float32",
-                    note=f"rfid_tag.run over {t_steps} steps (one lax.scan), time / {t_steps}")
+    return make_row(
+        NAME,
+        "jaxnav",
+        size,
+        "in_scan",
+        None,
+        median_s=t.median_s / t_steps,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        min_s=t.min_s / t_steps,
+        repeats=t.repeats,
+        steps=t_steps,
+        reads_per_step=J,
+        resamplings=int(np.asarray(trace.resampled).sum()),
+        dtype="float32",
+        note=f"rfid_tag.run over {t_steps} steps (one lax.scan), time / {t_steps}",
+    )
 
 
 def _jaxnav_run_tags(ctx: Context, size: dict, g: int) -> dict:
@@ -197,12 +212,26 @@ def _jaxnav_run_tags(ctx: Context, size: dict, g: int) -> dict:
         extra["ratio_to_tags_1"] = per_step / _CACHE[("run_tags", 1)]
     if ("run", TAG_N) in _CACHE:
         extra["ratio_to_run"] = per_step / _CACHE[("run", TAG_N)]
-    return make_row(NAME, "jaxnav", size, "in_scan", None, median_s=per_step, compile_s=compile_s,
-                    min_s=t.min_s / t_steps, repeats=t.repeats, steps=t_steps, reads_per_step=J, call="run_tags",
-                    per_tag_s=per_step / g, resamplings=int(np.asarray(trace.resampled).sum()),
-                    valid_read_fraction=float(np.asarray(reads.mask).mean()), dtype="float32",
-                    note=f"rfid_tag.run_tags on {g} tag(s) (vmap of the scan), time / {t_steps} steps for all tags",
-                    **extra)
+    return make_row(
+        NAME,
+        "jaxnav",
+        size,
+        "in_scan",
+        None,
+        median_s=per_step,
+        compile_s=compile_s,
+        min_s=t.min_s / t_steps,
+        repeats=t.repeats,
+        steps=t_steps,
+        reads_per_step=J,
+        call="run_tags",
+        per_tag_s=per_step / g,
+        resamplings=int(np.asarray(trace.resampled).sum()),
+        valid_read_fraction=float(np.asarray(reads.mask).mean()),
+        dtype="float32",
+        note=f"rfid_tag.run_tags on {g} tag(s) (vmap of the scan), time / {t_steps} steps for all tags",
+        **extra,
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -321,16 +350,34 @@ def _baseline_fn(n: int, gain: str = "atan2"):
 def _baseline_row(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dict:
     run = _baseline_fn(n)
     r = tag_reads(0)
-    args = (jax.random.key(3), state0.particles.T, state0.log_weights, (r.reader, r.rssi, r.phase, r.wavelength, r.mask))
+    args = (
+        jax.random.key(3),
+        state0.particles.T,
+        state0.log_weights,
+        (r.reader, r.rssi, r.phase, r.wavelength, r.mask),
+    )
     t_steps = _steps()
     compile_s = ctx.compile_s((NAME, "baseline", n), run, *args)
     fn = lambda: jax.block_until_ready(run(*args))  # noqa: E731
     _, (_, _, resampled) = fn()
     t = time_calls(fn, repeats=ctx.reps(3 if _big(n) else 10), warmup=0, budget_s=60.0, min_repeats=2)
-    return make_row(NAME, "jax-baseline", size, "in_scan", None, median_s=t.median_s / t_steps, compile_s=compile_s,
-                    floor_s=floor_s, min_s=t.min_s / t_steps, repeats=t.repeats, steps=t_steps, reads_per_step=J,
-                    resamplings=int(np.asarray(resampled).sum()), dtype="float32",
-                    note="hand-written plain-JAX lax.scan, [4, N] particles (not a peer; STYLE.md item 14)")
+    return make_row(
+        NAME,
+        "jax-baseline",
+        size,
+        "in_scan",
+        None,
+        median_s=t.median_s / t_steps,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        min_s=t.min_s / t_steps,
+        repeats=t.repeats,
+        steps=t_steps,
+        reads_per_step=J,
+        resamplings=int(np.asarray(resampled).sum()),
+        dtype="float32",
+        note="hand-written plain-JAX lax.scan, [4, N] particles (not a peer; STYLE.md item 14)",
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -362,10 +409,19 @@ def _numpy_row(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dict
             if spent >= 60.0 and len(samples) >= 2:
                 break
     t = Timing.from_samples(samples)
-    return make_row(NAME, "numpy", size, "per_call", t, floor_s=floor_s, steps=t_steps, reads_per_step=J,
-                    resamplings=int(np.median(counts)), dtype="float32",
-                    note=f"NumpyRFIDTag (vectorised NumPy, float32), Python loop over the {t_steps} steps, "
-                         f"time / {t_steps}")
+    return make_row(
+        NAME,
+        "numpy",
+        size,
+        "per_call",
+        t,
+        floor_s=floor_s,
+        steps=t_steps,
+        reads_per_step=J,
+        resamplings=int(np.median(counts)),
+        dtype="float32",
+        note=f"NumpyRFIDTag (vectorised NumPy, float32), Python loop over the {t_steps} steps, time / {t_steps}",
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -457,19 +513,41 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
 
         jit = {
             "jaxnav step, no resampling": (jax.jit(lambda k, s: rt._step(k, s, cfg_nr, params, r)), (key, state)),
-            "jaxnav refresh (rfid_tag._resample)": (jax.jit(lambda k, p, w: rt._resample(k, p, w, cfg, params)),
-                                                     (key, state.particles, rt._weigh(state, cfg, params, r))),
-            "jaxnav resample, no refresh": (jax.jit(lambda k, p, l: resampling.conditional_resample(
-                k, p, l, threshold=1.0, refresh=False, normalized=True)), (key, state.particles, lw)),
-            "jaxnav log_likelihoods (combined)": (jax.jit(lambda p: rt.log_likelihoods(cfg, params, p, r)),
-                                                  (state.particles,)),
-            "jaxnav log_likelihoods (rssi only)": (jax.jit(lambda p: rt.log_likelihoods(cfg_w["rssi"], params, p, r)),
-                                                   (state.particles,)),
-            "jaxnav log_likelihoods (phase only)": (jax.jit(lambda p: rt.log_likelihoods(cfg_w["phase"], params, p, r)),
-                                                    (state.particles,)),
-            "jaxnav antenna gain alone": (jax.jit(lambda p: jnp.sum(U._gain_nocheck(
-                p[:, None, :3] - r.reader[None, :, :3], r.reader[None, :, 3], params.channel.antenna, None), -1)),
-                (state.particles,)),
+            "jaxnav refresh (rfid_tag._resample)": (
+                jax.jit(lambda k, p, w: rt._resample(k, p, w, cfg, params)),
+                (key, state.particles, rt._weigh(state, cfg, params, r)),
+            ),
+            "jaxnav resample, no refresh": (
+                jax.jit(
+                    lambda k, p, l: resampling.conditional_resample(
+                        k, p, l, threshold=1.0, refresh=False, normalized=True
+                    )
+                ),
+                (key, state.particles, lw),
+            ),
+            "jaxnav log_likelihoods (combined)": (
+                jax.jit(lambda p: rt.log_likelihoods(cfg, params, p, r)),
+                (state.particles,),
+            ),
+            "jaxnav log_likelihoods (rssi only)": (
+                jax.jit(lambda p: rt.log_likelihoods(cfg_w["rssi"], params, p, r)),
+                (state.particles,),
+            ),
+            "jaxnav log_likelihoods (phase only)": (
+                jax.jit(lambda p: rt.log_likelihoods(cfg_w["phase"], params, p, r)),
+                (state.particles,),
+            ),
+            "jaxnav antenna gain alone": (
+                jax.jit(
+                    lambda p: jnp.sum(
+                        U._gain_nocheck(
+                            p[:, None, :3] - r.reader[None, :, :3], r.reader[None, :, 3], params.channel.antenna, None
+                        ),
+                        -1,
+                    )
+                ),
+                (state.particles,),
+            ),
             "jaxnav normalise + estimate + ESS": (jax.jit(norm_est), (state.log_weights, ll, state.particles)),
             "baseline loglik, jnp.arctan2": (jax.jit(_baseline_loglik("atan2")), (pt, rd)),
             "baseline loglik, fastmath.atan2": (jax.jit(_baseline_loglik("fastmath")), (pt, rd)),
@@ -481,14 +559,20 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
             pg = jnp.stack([initial_state(n, i).particles for i in range(g)])
             keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
             jit[f"vmap {g} tags: log_likelihoods"] = (
-                jax.jit(jax.vmap(lambda p, rr: rt.log_likelihoods(cfg, params, p, rr))), (pg, rg))
-            wg = jax.vmap(lambda p, rr: rt._weigh(rt.RFIDTagState(p, jnp.full((n,), -math.log(n))), cfg, params, rr))(pg, rg)
+                jax.jit(jax.vmap(lambda p, rr: rt.log_likelihoods(cfg, params, p, rr))),
+                (pg, rg),
+            )
+            wg = jax.vmap(lambda p, rr: rt._weigh(rt.RFIDTagState(p, jnp.full((n,), -math.log(n))), cfg, params, rr))(
+                pg, rg
+            )
             jit[f"{g} tags: lax.map of each tag's refresh"] = (
-                jax.jit(lambda k, p, w: jax.lax.map(lambda a: rt._resample(*a, cfg, params), (k, p, w))), (keys, pg, wg))
+                jax.jit(lambda k, p, w: jax.lax.map(lambda a: rt._resample(*a, cfg, params), (k, p, w))),
+                (keys, pg, wg),
+            )
         fns = {}
         for name, (f, args) in jit.items():
             f.lower(*args).compile()
-            fns[name] = (lambda f=f, args=args: jax.block_until_ready(f(*args)))
+            fns[name] = lambda f=f, args=args: jax.block_until_ready(f(*args))
         p0, lw0 = np.asarray(state.particles), np.asarray(state.log_weights)
         rn = tuple(np.asarray(x) for x in rd)
         pf = numpy_uhf.NumpyRFIDTag(p0, model, lw0, ess_threshold=0.0)
@@ -528,7 +612,14 @@ if __name__ == "__main__":
         with harness.CpuMonitor() as mon:
             parts = profile(tuple(int(s) for s in a.sizes.split(",")), a.rounds)
         if a.out:
-            harness.write_json(a.out, {"machine": harness.machine_info({}), "versions": harness.versions(),
-                                       "other_load_cores": mon.other_cores, "parts": parts,
-                                       "command": "python -m benchmarks.workloads.u1_uhf_update --profile "
-                                                  f"--sizes {a.sizes} --rounds {a.rounds}"})
+            harness.write_json(
+                a.out,
+                {
+                    "machine": harness.machine_info({}),
+                    "versions": harness.versions(),
+                    "other_load_cores": mon.other_cores,
+                    "parts": parts,
+                    "command": "python -m benchmarks.workloads.u1_uhf_update --profile "
+                    f"--sizes {a.sizes} --rounds {a.rounds}",
+                },
+            )

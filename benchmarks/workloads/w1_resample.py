@@ -96,8 +96,10 @@ from benchmarks.workloads import Workload, register
 NAME = "W1"
 SCHEMES = ("systematic", "stratified", "multinomial", "residual")
 DTYPES = ("float32", "float64")
-FLOOR_DOC = ("N * (itemsize of the weights + 4) bytes: read N weights (4 B float32, 8 B float64) + write N int32 "
-             "indices, / measured bandwidth")
+FLOOR_DOC = (
+    "N * (itemsize of the weights + 4) bytes: read N weights (4 B float32, 8 B float64) + write N int32 "
+    "indices, / measured bandwidth"
+)
 
 INPUT_BYTES = 32  # per particle, held for a whole size: w (f64), log w (f32 and f64), blackjax's w (f32 or f64)
 WORK_BYTES = 90  # per particle, the largest working set of one row (jaxnav multinomial in_scan, float64, S = 2)
@@ -265,8 +267,9 @@ def _common(scheme: str, dtype: str, floor_s: float) -> dict:
     return {"scheme": scheme, "dtype": dtype, "floor_s": floor_s}
 
 
-def _jax_per_call(ctx: Context, size: dict, plan: _Plan, impl: str, scheme: str, dtype: str, fn, x,
-                  floor_s: float, note: str) -> dict:
+def _jax_per_call(
+    ctx: Context, size: dict, plan: _Plan, impl: str, scheme: str, dtype: str, fn, x, floor_s: float, note: str
+) -> dict:
     """One jitted ``fn(key, x)`` per resampling, a fresh key each call (caller holds the x64 setting)."""
     n = x.shape[0]
     f = jax.jit(fn)
@@ -285,12 +288,22 @@ def _jax_per_call(ctx: Context, size: dict, plan: _Plan, impl: str, scheme: str,
     t = _time(call, reps, plan.per_call_warmup, plan.min_repeats)
     index_dtype = _check(last.pop("out"), n)
     _record(ctx, (impl, scheme, dtype, "per_call"), n, t.median_s)
-    return make_row(NAME, impl, size, "per_call", t, compile_s=compile_s, index_dtype=index_dtype, note=note,
-                    **_common(scheme, dtype, floor_s))
+    return make_row(
+        NAME,
+        impl,
+        size,
+        "per_call",
+        t,
+        compile_s=compile_s,
+        index_dtype=index_dtype,
+        note=note,
+        **_common(scheme, dtype, floor_s),
+    )
 
 
-def _jaxnav_in_scan(ctx: Context, size: dict, plan: _Plan, scheme: str, dtype: str, lw: jax.Array,
-                    floor_s: float) -> dict:
+def _jaxnav_in_scan(
+    ctx: Context, size: dict, plan: _Plan, scheme: str, dtype: str, lw: jax.Array, floor_s: float
+) -> dict:
     """S resamplings inside one jitted lax.scan; the weights are scanned over as xs (caller holds x64)."""
     from jaxnav.core.resampling import SCHEMES as JAXNAV_SCHEMES
 
@@ -312,11 +325,13 @@ def _jaxnav_in_scan(ctx: Context, size: dict, plan: _Plan, scheme: str, dtype: s
     g = jax.jit(scan_fn)
     spec = jax.ShapeDtypeStruct((s, n), lw.dtype)
     compile_s = ctx.compile_s((NAME, "jaxnav", scheme, dtype, "in_scan", n, s), g, key0, spec)
-    why = _jax_memory_reason(f"jaxnav {scheme} {dtype} in_scan (S={s}) at N={_label(n)}", g, key0, spec,
-                             extra=s * n * itemsize)
+    why = _jax_memory_reason(
+        f"jaxnav {scheme} {dtype} in_scan (S={s}) at N={_label(n)}", g, key0, spec, extra=s * n * itemsize
+    )
     if why:
-        return skipped_row(NAME, "jaxnav", size, "in_scan", why, compile_s=compile_s, scan_length=s,
-                           **_common(scheme, dtype, floor_s))
+        return skipped_row(
+            NAME, "jaxnav", size, "in_scan", why, compile_s=compile_s, scan_length=s, **_common(scheme, dtype, floor_s)
+        )
     lw_stack = jax.block_until_ready(jnp.broadcast_to(lw, (s, n)) + jnp.zeros((s, 1), lw.dtype))
     reps = plan.in_scan
     keys = _keys(3, reps + plan.in_scan_warmup + 1)
@@ -330,13 +345,37 @@ def _jaxnav_in_scan(ctx: Context, size: dict, plan: _Plan, scheme: str, dtype: s
     finally:
         del lw_stack
     index_dtype = _check(last.pop("out"), n)
-    return make_row(NAME, "jaxnav", size, "in_scan", None, median_s=t.median_s / s, compile_s=compile_s,
-                    min_s=t.min_s / s, repeats=t.repeats, scan_length=s, index_dtype=index_dtype,
-                    note="exact integer CDF; sorted int32 ancestors", **_common(scheme, dtype, floor_s))
+    return make_row(
+        NAME,
+        "jaxnav",
+        size,
+        "in_scan",
+        None,
+        median_s=t.median_s / s,
+        compile_s=compile_s,
+        min_s=t.min_s / s,
+        repeats=t.repeats,
+        scan_length=s,
+        index_dtype=index_dtype,
+        note="exact integer CDF; sorted int32 ancestors",
+        **_common(scheme, dtype, floor_s),
+    )
 
 
-def _peer_row(ctx: Context, size: dict, plan: _Plan, impl: str, scheme: str, fn, n: int, floor_s: float,
-              note: str, reps: int | None = None, warmup: int | None = None, budget_s: float = ROW_BUDGET_S) -> dict:
+def _peer_row(
+    ctx: Context,
+    size: dict,
+    plan: _Plan,
+    impl: str,
+    scheme: str,
+    fn,
+    n: int,
+    floor_s: float,
+    note: str,
+    reps: int | None = None,
+    warmup: int | None = None,
+    budget_s: float = ROW_BUDGET_S,
+) -> dict:
     """A NumPy-side peer ``fn()`` on float64 weights."""
     dtype = "float64"
     last = {}
@@ -348,8 +387,9 @@ def _peer_row(ctx: Context, size: dict, plan: _Plan, impl: str, scheme: str, fn,
     t = _time(call, reps, plan.peer_warmup if warmup is None else warmup, plan.min_repeats, budget_s)
     index_dtype = _check(last.pop("out"), n)
     _record(ctx, (impl, scheme, dtype, "per_call"), n, t.median_s)
-    return make_row(NAME, impl, size, "per_call", t, index_dtype=index_dtype, note=note,
-                    **_common(scheme, dtype, floor_s))
+    return make_row(
+        NAME, impl, size, "per_call", t, index_dtype=index_dtype, note=note, **_common(scheme, dtype, floor_s)
+    )
 
 
 # --------------------------------------------------------------------------- the NumPy peer
@@ -378,17 +418,20 @@ def numpy_resampler(scheme: str, w: np.ndarray, rng: np.random.Generator):
         return u
 
     if scheme == "systematic":
+
         def f():
             u = grid + rng.random()
             u *= inv_n
             return search(np.cumsum(w), u)
     elif scheme == "stratified":
+
         def f():
             u = rng.random(n)
             u += grid
             u *= inv_n
             return search(np.cumsum(w), u)
     elif scheme == "multinomial":
+
         def f():
             cdf = np.cumsum(w)
             return search(cdf, sorted_uniforms(n, cdf[-1]))
@@ -439,11 +482,14 @@ def run(ctx: Context, size: dict) -> list[dict]:
     x64_before = bool(jax.config.jax_enable_x64)
     floors = {dt: ctx.floor(floor_bytes(n, dt)) for dt in DTYPES}
     planned = _planned(n)
-    why = _memory_reason(f"N={_label(n)} ({INPUT_BYTES} B of inputs + up to {WORK_BYTES} B per particle)",
-                         size_bytes(n))
+    why = _memory_reason(
+        f"N={_label(n)} ({INPUT_BYTES} B of inputs + up to {WORK_BYTES} B per particle)", size_bytes(n)
+    )
     if why:
-        return [skipped_row(NAME, impl, size, mode, why, **_common(scheme, dtype, floors[dtype]))
-                for impl, scheme, dtype, mode in planned]
+        return [
+            skipped_row(NAME, impl, size, mode, why, **_common(scheme, dtype, floors[dtype]))
+            for impl, scheme, dtype, mode in planned
+        ]
 
     plan = _Plan(ctx, n)
     w = make_weights(n)
@@ -470,9 +516,18 @@ def run(ctx: Context, size: dict) -> list[dict]:
     def jaxnav_per_call(scheme, dtype):
         resample = JAXNAV_SCHEMES[scheme]
         with _precision(dtype):
-            return _jax_per_call(ctx, size, plan, "jaxnav", scheme, dtype,
-                                 lambda key, x: resample(key, x, x.shape[0]), lw[dtype], floors[dtype],
-                                 "exact integer CDF; sorted int32 ancestors")
+            return _jax_per_call(
+                ctx,
+                size,
+                plan,
+                "jaxnav",
+                scheme,
+                dtype,
+                lambda key, x: resample(key, x, x.shape[0]),
+                lw[dtype],
+                floors[dtype],
+                "exact integer CDF; sorted int32 ancestors",
+            )
 
     def jaxnav_in_scan(scheme, dtype):
         with _precision(dtype):
@@ -483,35 +538,76 @@ def run(ctx: Context, size: dict) -> list[dict]:
         with _precision(dtype):
             x = jax.block_until_ready(jnp.asarray(w, dtype))
             try:
-                return _jax_per_call(ctx, size, plan, "blackjax", scheme, dtype,
-                                     lambda key, x: resample(key, x, x.shape[0]), x, floors[dtype],
-                                     f"jitted, {dtype}: {_BLACKJAX_NOTE[scheme]}")
+                return _jax_per_call(
+                    ctx,
+                    size,
+                    plan,
+                    "blackjax",
+                    scheme,
+                    dtype,
+                    lambda key, x: resample(key, x, x.shape[0]),
+                    x,
+                    floors[dtype],
+                    f"jitted, {dtype}: {_BLACKJAX_NOTE[scheme]}",
+                )
             finally:
                 del x
 
     def numpy_per_call(scheme):
         f = numpy_resampler(scheme, w, np.random.default_rng(4))
-        return _peer_row(ctx, size, plan, "numpy", scheme, f, n, floors["float64"],
-                         "vectorised float64: cumsum + searchsorted" + (
-                             "; floor copies by np.repeat, then sorted draws" if scheme == "residual" else ""))
+        return _peer_row(
+            ctx,
+            size,
+            plan,
+            "numpy",
+            scheme,
+            f,
+            n,
+            floors["float64"],
+            "vectorised float64: cumsum + searchsorted"
+            + ("; floor copies by np.repeat, then sorted draws" if scheme == "residual" else ""),
+        )
 
     def filterpy_per_call(scheme):
         np.random.seed(5)  # filterpy draws from the global NumPy generator
         f = getattr(mc, _FILTERPY[scheme])
         loop = scheme != "multinomial"
-        return _peer_row(ctx, size, plan, "filterpy", scheme, lambda: f(w), n, floors["float64"],
-                         ("pure-Python loop over N" if loop else "searchsorted on unsorted uniforms")
-                         + "; repeats capped by an 8 s budget",
-                         reps=20 if n <= 10**4 else 5, warmup=1 if n <= 10**5 else 0, budget_s=8.0)
+        return _peer_row(
+            ctx,
+            size,
+            plan,
+            "filterpy",
+            scheme,
+            lambda: f(w),
+            n,
+            floors["float64"],
+            ("pure-Python loop over N" if loop else "searchsorted on unsorted uniforms")
+            + "; repeats capped by an 8 s budget",
+            reps=20 if n <= 10**4 else 5,
+            warmup=1 if n <= 10**5 else 0,
+            budget_s=8.0,
+        )
 
     def particles_per_call(scheme):
         np.random.seed(6)  # particles draws from the global NumPy generator
         f = getattr(rs, scheme)
-        return _peer_row(ctx, size, plan, "particles", scheme, lambda: f(w), n, floors["float64"],
-                         "numba inverse_cdf; JIT warm-up excluded")
+        return _peer_row(
+            ctx,
+            size,
+            plan,
+            "particles",
+            scheme,
+            lambda: f(w),
+            n,
+            floors["float64"],
+            "numba inverse_cdf; JIT warm-up excluded",
+        )
 
-    missing = {"blackjax": bj_why if bj is None else None, "filterpy": mc_why if mc is None else None,
-               "particles": rs_why if rs is None else None}
+    missing = {
+        "blackjax": bj_why if bj is None else None,
+        "filterpy": mc_why if mc is None else None,
+        "particles": rs_why if rs is None else None,
+    }
 
     def skip_reason(impl: str, scheme: str, dtype: str, mode: str) -> str | None:
         """Why a peer row is not measured at all, decided before measuring (so that no CPU monitoring or

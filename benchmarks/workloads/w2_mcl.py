@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -214,10 +214,20 @@ def _jaxnav_per_call(ctx: Context, size: dict, n: int, state0, floor_s: float, i
 
     big = n >= 10**6
     t = _per_step_timing(start, passes=ctx.reps(1 if big else 3), budget_s=20.0 if big else 30.0)
-    return make_row(NAME, impl, size, "per_call", t, compile_s=compile_s, floor_s=floor_s, dtype="float32",
-                    steps=t.repeats,
-                    note="public mcl.step (host-side validation + jitted step)" if impl == "jaxnav"
-                    else "internal mcl._step_jit, no validation")
+    return make_row(
+        NAME,
+        impl,
+        size,
+        "per_call",
+        t,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        dtype="float32",
+        steps=t.repeats,
+        note="public mcl.step (host-side validation + jitted step)"
+        if impl == "jaxnav"
+        else "internal mcl._step_jit, no validation",
+    )
 
 
 def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dict:
@@ -227,15 +237,28 @@ def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) ->
     _, _, _, sim = _world()
     config, params = _config_params(n)
     run_key = jax.random.key(2)
-    compile_s = ctx.compile_s((NAME, "run", n), mcl._run_jit, run_key, config, params, sim.controls,
-                              sim.observations, state0)
+    compile_s = ctx.compile_s(
+        (NAME, "run", n), mcl._run_jit, run_key, config, params, sim.controls, sim.observations, state0
+    )
     fn = lambda: jax.block_until_ready(mcl.run(run_key, config, params, sim.controls, sim.observations, state0))
     big = n >= 10**6
     # At 1e6 one run takes tens of seconds: no separate warm-up (the executable is compiled and cached).
     t = time_calls(fn, repeats=ctx.reps(3 if big else 10), warmup=0 if big else 1, budget_s=60.0, min_repeats=2)
-    return make_row(NAME, "jaxnav", size, "in_scan", None, median_s=t.median_s / T, compile_s=compile_s,
-                    floor_s=floor_s, min_s=t.min_s / T, repeats=t.repeats, steps=T, dtype="float32",
-                    note="mcl.run over 50 steps, time / 50")
+    return make_row(
+        NAME,
+        "jaxnav",
+        size,
+        "in_scan",
+        None,
+        median_s=t.median_s / T,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        min_s=t.min_s / T,
+        repeats=t.repeats,
+        steps=T,
+        dtype="float32",
+        note="mcl.run over 50 steps, time / 50",
+    )
 
 
 def _baseline_rows(ctx: Context, size: dict, n: int, state0, floor_s: float) -> list[dict]:
@@ -282,9 +305,21 @@ def _baseline_rows(ctx: Context, size: dict, n: int, state0, floor_s: float) -> 
     big = n >= 10**6
     t = time_calls(fn, repeats=ctx.reps(3 if big else 10), warmup=0 if big else 1, budget_s=60.0, min_repeats=2)
     return [
-        make_row(NAME, "jax-baseline", size, "in_scan", None, median_s=t.median_s / T, compile_s=compile_s,
-                 floor_s=floor_s, min_s=t.min_s / T, repeats=t.repeats, steps=T, dtype="float32",
-                 note="hand-written plain-JAX lax.scan (not a peer; STYLE.md item 14)")
+        make_row(
+            NAME,
+            "jax-baseline",
+            size,
+            "in_scan",
+            None,
+            median_s=t.median_s / T,
+            compile_s=compile_s,
+            floor_s=floor_s,
+            min_s=t.min_s / T,
+            repeats=t.repeats,
+            steps=T,
+            dtype="float32",
+            note="hand-written plain-JAX lax.scan (not a peer; STYLE.md item 14)",
+        )
     ]
 
 
@@ -334,9 +369,18 @@ def _numpy_row(ctx: Context, size: dict, n: int, state0, floor_s: float, cls_nam
     extra = {}
     if cls_name == "filterpy":
         extra["index_errors"] = sum(pf.index_errors for pf in filters)  # redrawn resamplings, see FilterpyMCL
-    return make_row(NAME, cls_name, size, "per_call", t, floor_s=floor_s, dtype="float32",
-                    steps=t.repeats, note=note + ("" if t.repeats >= T or not big else f"; {t.repeats} steps timed"),
-                    **extra)
+    return make_row(
+        NAME,
+        cls_name,
+        size,
+        "per_call",
+        t,
+        floor_s=floor_s,
+        dtype="float32",
+        steps=t.repeats,
+        note=note + ("" if t.repeats >= T or not big else f"; {t.repeats} steps timed"),
+        **extra,
+    )
 
 
 _particles_warm = False
@@ -372,8 +416,17 @@ def _particles_row(ctx: Context, size: dict, n: int, state0, floor_s: float) -> 
         return step
 
     t = _per_step_timing(start, passes=ctx.reps(1 if n >= 10**5 else 3), budget_s=30.0, first=1)
-    return make_row(NAME, "particles", size, "per_call", t, floor_s=floor_s, dtype="float32 particles, float64 weights",
-                    steps=t.repeats, note="particles.SMC(FeynmanKac, resampling='systematic', ESSrmin=1.0), next(alg) per step")
+    return make_row(
+        NAME,
+        "particles",
+        size,
+        "per_call",
+        t,
+        floor_s=floor_s,
+        dtype="float32 particles, float64 weights",
+        steps=t.repeats,
+        note="particles.SMC(FeynmanKac, resampling='systematic', ESSrmin=1.0), next(alg) per step",
+    )
 
 
 def run(ctx: Context, size: dict) -> list[dict]:
@@ -382,12 +435,15 @@ def run(ctx: Context, size: dict) -> list[dict]:
     state0 = _initial_state(n)
     rows = []
     for impl in ("jaxnav", "jaxnav-nocheck"):
-        rows += guarded(ctx, NAME, impl, size, "per_call",
-                        lambda impl=impl: _jaxnav_per_call(ctx, size, n, state0, floor_s, impl))
+        rows += guarded(
+            ctx, NAME, impl, size, "per_call", lambda impl=impl: _jaxnav_per_call(ctx, size, n, state0, floor_s, impl)
+        )
     rows += guarded(ctx, NAME, "jaxnav", size, "in_scan", lambda: _jaxnav_in_scan(ctx, size, n, state0, floor_s))
     rows += guarded(ctx, NAME, "jax-baseline", size, "in_scan", lambda: _baseline_rows(ctx, size, n, state0, floor_s))
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, n, state0, floor_s, "numpy"))
-    rows += guarded(ctx, NAME, "filterpy", size, "per_call", lambda: _numpy_row(ctx, size, n, state0, floor_s, "filterpy"))
+    rows += guarded(
+        ctx, NAME, "filterpy", size, "per_call", lambda: _numpy_row(ctx, size, n, state0, floor_s, "filterpy")
+    )
     rows += guarded(ctx, NAME, "particles", size, "per_call", lambda: _particles_row(ctx, size, n, state0, floor_s))
     return rows
 

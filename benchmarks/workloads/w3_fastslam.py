@@ -101,8 +101,8 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Callable
 from functools import partial
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -126,6 +126,7 @@ PARTICLES = (100, 500, 1000, 4000)
 LANDMARKS = (10, 100, 1000)
 from jaxnav.core.resampling import copy_ancestors_in_place as inplace_ancestor_copy  # noqa: E402
 from jaxnav.slam.fastslam import IN_PLACE_MIN_FLOATS as INPLACE_MIN_FLOATS  # noqa: E402
+
 FLOOR_DOC = (
     "M * (b*(14 + 12K + 12N) + 4) bytes per step, b = 4 (float32), K = 5: poses read+written by the motion "
     "(6Mb), the K observed landmarks (6 floats) read+written (12KMb), log-weights written+read (2Mb), int32 "
@@ -209,16 +210,28 @@ def make_data(n: int, t: int = T, k: int = K, dtype=np.float32) -> W3Data:
     controls = np.tile(np.asarray(CONTROL), (t, 1))
     motion_noise = VelocityNoise(alphas=jnp.zeros((6,), dtype), pose_sd=jnp.asarray(POSE_SD, dtype))
     sensor_noise = RangeBearingNoise(jnp.asarray(SENSOR_SD, dtype))
-    sim = simulate(jax.random.key(0), jnp.asarray(landmarks, dtype), jnp.asarray(START, dtype),
-                   jnp.asarray(controls, dtype), motion_noise, sensor_noise)
+    sim = simulate(
+        jax.random.key(0),
+        jnp.asarray(landmarks, dtype),
+        jnp.asarray(START, dtype),
+        jnp.asarray(controls, dtype),
+        motion_noise,
+        sensor_noise,
+    )
     true_poses = np.asarray(sim.true_poses, np.float64)
     z_all = np.asarray(sim.observations.z)
     dist = np.hypot(landmarks[None, :, 0] - true_poses[:, None, 0], landmarks[None, :, 1] - true_poses[:, None, 1])
     ids = np.argsort(dist, axis=1, kind="stable")[:, :k].astype(np.int32)
     z = np.take_along_axis(z_all, ids[:, :, None], axis=1)
     return W3Data(
-        landmarks.astype(dtype), prior_means.astype(dtype), prior_covs.astype(dtype), controls.astype(dtype),
-        true_poses.astype(dtype), ids, z.astype(dtype), np.ones((t, k), bool),
+        landmarks.astype(dtype),
+        prior_means.astype(dtype),
+        prior_covs.astype(dtype),
+        controls.astype(dtype),
+        true_poses.astype(dtype),
+        ids,
+        z.astype(dtype),
+        np.ones((t, k), bool),
     )
 
 
@@ -238,8 +251,14 @@ def config_params(m: int, n: int, ess_threshold: float = 1.0):
     from jaxnav.models.motion import VelocityNoise
     from jaxnav.slam import fastslam as fs
 
-    config = fs.FastSLAMConfig(num_particles=m, num_landmarks=n, version=1, motion_model="velocity",
-                               resampling="systematic", ess_threshold=ess_threshold)
+    config = fs.FastSLAMConfig(
+        num_particles=m,
+        num_landmarks=n,
+        version=1,
+        motion_model="velocity",
+        resampling="systematic",
+        ess_threshold=ess_threshold,
+    )
     params = fs.FastSLAMParams(
         VelocityNoise(alphas=jnp.zeros((6,), jnp.float32), pose_sd=jnp.asarray(POSE_SD, jnp.float32)),
         RangeBearingNoise(jnp.asarray(SENSOR_SD, jnp.float32)),
@@ -254,8 +273,15 @@ def initial_state(m: int, n: int):
     data = _data(n)
     config, params = config_params(m, n)
     return jax.block_until_ready(
-        fs.init(jax.random.key(1), config, params, jnp.asarray(START, jnp.float32), jnp.asarray(INIT_SD, jnp.float32),
-                landmark_means=jnp.asarray(data.prior_means), landmark_covs=jnp.asarray(data.prior_covs))
+        fs.init(
+            jax.random.key(1),
+            config,
+            params,
+            jnp.asarray(START, jnp.float32),
+            jnp.asarray(INIT_SD, jnp.float32),
+            landmark_means=jnp.asarray(data.prior_means),
+            landmark_covs=jnp.asarray(data.prior_covs),
+        )
     )
 
 
@@ -342,12 +368,12 @@ def prototype_landmark_ekf(om, r: jax.Array, poses: jax.Array, mean: jax.Array, 
         return x
 
     white = fwd(y)
-    log_lik = -0.5 * (sum(w * w for w in white) + 2.0 * sum(jnp.log(low[i][i]) for i in range(dz))
-                      + dz * math.log(2.0 * math.pi))
+    log_lik = -0.5 * (
+        sum(w * w for w in white) + 2.0 * sum(jnp.log(low[i][i]) for i in range(dz)) + dz * math.log(2.0 * math.pi)
+    )
     gain = [bwd(fwd(c[i])) for i in range(d)]  # row i of Σ Hᵀ S⁻¹
     new_mean = jnp.stack([mean[:, i] + sum(gain[i][k] * y[k] for k in range(dz)) for i in range(d)], -1)
-    a = [[(1.0 if i == j else 0.0) - sum(gain[i][k] * hm[k][j] for k in range(dz)) for j in range(d)]
-         for i in range(d)]
+    a = [[(1.0 if i == j else 0.0) - sum(gain[i][k] * hm[k][j] for k in range(dz)) for j in range(d)] for i in range(d)]
     jos = _mat(_mat(a, p), _tr(a))
     krk = _mat(_mat(gain, rr), _tr(gain))
     new = [[0.5 * ((jos[i][j] + krk[i][j]) + (jos[j][i] + krk[j][i])) for j in range(d)] for i in range(d)]
@@ -463,8 +489,9 @@ def prototype_run(key, config, params, controls, observations, state):
 # timing
 
 
-def _per_step_timing(start: Callable[[], Callable[[int], object]], *, passes: int, budget_s: float,
-                     min_steps: int = 5) -> Timing:
+def _per_step_timing(
+    start: Callable[[], Callable[[int], object]], *, passes: int, budget_s: float, min_steps: int = 5
+) -> Timing:
     """Median per-step time over ``passes`` runs of the T steps (``start()`` resets and returns ``step(t)``)."""
     samples: list[float] = []
     spent = 0.0
@@ -490,7 +517,9 @@ def _step_inputs(n: int):
     run_key = jax.random.key(2)
     keys = [jax.random.fold_in(run_key, t) for t in range(T)]
     ctrls = [jnp.asarray(data.controls[t]) for t in range(T)]
-    obs = [RangeBearingObs(jnp.asarray(data.ids[t]), jnp.asarray(data.z[t]), jnp.asarray(data.mask[t])) for t in range(T)]
+    obs = [
+        RangeBearingObs(jnp.asarray(data.ids[t]), jnp.asarray(data.z[t]), jnp.asarray(data.mask[t])) for t in range(T)
+    ]
     return jax.block_until_ready((run_key, keys, ctrls, obs))
 
 
@@ -505,7 +534,11 @@ def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float, impl: str) -
     config, params = config_params(m, n)
     _, keys, ctrls, obs = _step_inputs(n)
     if impl == "jaxnav":
-        fn, jitted, note = fs.step, fs._step_jit, "public fastslam.step (host-side validation + jitted step, donates state)"
+        fn, jitted, note = (
+            fs.step,
+            fs._step_jit,
+            "public fastslam.step (host-side validation + jitted step, donates state)",
+        )
     else:
         fn, jitted = prototype_step_checked, prototype_step
         note = "prototype_step behind fastslam.step's validation: in-place resampling copy of the maps; a proposal"
@@ -523,8 +556,19 @@ def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float, impl: str) -
         return step
 
     t = _per_step_timing(start, passes=ctx.reps(2 if _big(m, n) else 3), budget_s=20.0)
-    return make_row(NAME, impl, size, "per_call", t, compile_s=compile_s, floor_s=floor_s, landmarks=n,
-                    steps=t.repeats, dtype="float32", note=note)
+    return make_row(
+        NAME,
+        impl,
+        size,
+        "per_call",
+        t,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        landmarks=n,
+        steps=t.repeats,
+        dtype="float32",
+        note=note,
+    )
 
 
 def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float, impl: str) -> dict:
@@ -540,12 +584,27 @@ def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float, impl: str) ->
     else:
         fn = jitted = prototype_run
         note = "prototype_run over 20 steps (one lax.scan), time / 20; a proposal, not a peer"
-    compile_s = ctx.compile_s((NAME, impl, "run", m, n), jitted, run_key, config, params, controls, observations,
-                              state0)
+    compile_s = ctx.compile_s(
+        (NAME, impl, "run", m, n), jitted, run_key, config, params, controls, observations, state0
+    )
     call = lambda: jax.block_until_ready(fn(run_key, config, params, controls, observations, state0))
     t = time_calls(call, repeats=ctx.reps(3 if _big(m, n) else 7), warmup=1, budget_s=30.0, min_repeats=2)
-    return make_row(NAME, impl, size, "in_scan", None, median_s=t.median_s / T, compile_s=compile_s, floor_s=floor_s,
-                    min_s=t.min_s / T, repeats=t.repeats, steps=T, landmarks=n, dtype="float32", note=note)
+    return make_row(
+        NAME,
+        impl,
+        size,
+        "in_scan",
+        None,
+        median_s=t.median_s / T,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        min_s=t.min_s / T,
+        repeats=t.repeats,
+        steps=T,
+        landmarks=n,
+        dtype="float32",
+        note=note,
+    )
 
 
 def _numpy_row(ctx: Context, size: dict, state0, floor_s: float) -> dict:
@@ -566,8 +625,18 @@ def _numpy_row(ctx: Context, size: dict, state0, floor_s: float) -> dict:
     warm = start()
     warm(0)
     t = _per_step_timing(start, passes=ctx.reps(2 if _big(m, n) else 3), budget_s=20.0)
-    return make_row(NAME, "numpy", size, "per_call", t, floor_s=floor_s, landmarks=n, steps=t.repeats,
-                    dtype="float32", note="vectorised over particles, loop over the 5 observations, fancy-index copy")
+    return make_row(
+        NAME,
+        "numpy",
+        size,
+        "per_call",
+        t,
+        floor_s=floor_s,
+        landmarks=n,
+        steps=t.repeats,
+        dtype="float32",
+        note="vectorised over particles, loop over the 5 observations, fancy-index copy",
+    )
 
 
 def run(ctx: Context, size: dict) -> list[dict]:
@@ -576,8 +645,12 @@ def run(ctx: Context, size: dict) -> list[dict]:
     state0 = initial_state(m, n)
     rows = []
     for impl in ("jaxnav", "jaxnav-prototype"):
-        rows += guarded(ctx, NAME, impl, size, "per_call", lambda impl=impl: _jax_per_call(ctx, size, state0, floor_s, impl))
-        rows += guarded(ctx, NAME, impl, size, "in_scan", lambda impl=impl: _jax_in_scan(ctx, size, state0, floor_s, impl))
+        rows += guarded(
+            ctx, NAME, impl, size, "per_call", lambda impl=impl: _jax_per_call(ctx, size, state0, floor_s, impl)
+        )
+        rows += guarded(
+            ctx, NAME, impl, size, "in_scan", lambda impl=impl: _jax_in_scan(ctx, size, state0, floor_s, impl)
+        )
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, state0, floor_s))
     return rows
 
@@ -627,7 +700,9 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
         r = fs.RANGE_BEARING.noise_cov(params.sensor)
         valid, ids, _ = fs._slot_valid(o, n)
         # log-weights after one real step (without resampling): realistic ancestors
-        lw = jax.block_until_ready(fs._step_jit(keys[0], _fresh(state0), cfg_nr, params, ctrls[0], obs[0])[0].log_weights)
+        lw = jax.block_until_ready(
+            fs._step_jit(keys[0], _fresh(state0), cfg_nr, params, ctrls[0], obs[0])[0].log_weights
+        )
         k_res, _ = jax.random.split(jax.random.split(key)[1])
         idx = resampling.resample_weights(k_res, jnp.exp(lw), m)
         moved = int(jnp.sum(idx != jnp.arange(m)))
@@ -640,8 +715,9 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
 
         @partial(jax.jit, donate_argnums=0)
         def proto_update_only(s):
-            means, covs, _, ll, _ = _prototype_update_landmarks(fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen,
-                                                                o, valid, ids)
+            means, covs, _, ll, _ = _prototype_update_landmarks(
+                fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
+            )
             return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
 
         @partial(jax.jit, donate_argnums=0)
@@ -688,8 +764,15 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
                     t0 = time.perf_counter()
                     s = jax.block_until_ready(f(s))
                     samples.append((time.perf_counter() - t0) / div)
-            out.append({"M": m, "landmarks": n, "part": label, "median_s": float(np.median(samples)),
-                        "min_s": float(np.min(samples))})
+            out.append(
+                {
+                    "M": m,
+                    "landmarks": n,
+                    "part": label,
+                    "median_s": float(np.median(samples)),
+                    "min_s": float(np.min(samples)),
+                }
+            )
         maps = (np.asarray(state0.means), np.asarray(state0.covs))
         idx_np = np.asarray(idx)
         samples = []
@@ -698,8 +781,15 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
                 t0 = time.perf_counter()
                 _ = (maps[0][idx_np], maps[1][idx_np])
                 samples.append(time.perf_counter() - t0)
-        out.append({"M": m, "landmarks": n, "part": f"NumPy fancy-index copy of the maps ({moved} of {m} moved)",
-                    "median_s": float(np.median(samples)), "min_s": float(np.min(samples))})
+        out.append(
+            {
+                "M": m,
+                "landmarks": n,
+                "part": f"NumPy fancy-index copy of the maps ({moved} of {m} moved)",
+                "median_s": float(np.median(samples)),
+                "min_s": float(np.min(samples)),
+            }
+        )
     return out
 
 
@@ -721,8 +811,11 @@ def _main(argv=None) -> int:
     print(f"copy bandwidth {bw / 1e9:.2f} GB/s; load average {os.getloadavg()}")
     for row in profile(sizes, args.reps):
         floor = floor_bytes(row["M"], row["landmarks"]) / bw
-        print(f"M={row['M']:<5} N={row['landmarks']:<5} {row['part']:<42} median {fmt_time(row['median_s']):>10}  "
-              f"min {fmt_time(row['min_s']):>10}  ({row['median_s'] / floor:.1f}x floor)", flush=True)
+        print(
+            f"M={row['M']:<5} N={row['landmarks']:<5} {row['part']:<42} median {fmt_time(row['median_s']):>10}  "
+            f"min {fmt_time(row['min_s']):>10}  ({row['median_s'] / floor:.1f}x floor)",
+            flush=True,
+        )
     print(f"load average after: {os.getloadavg()}")
     return 0
 

@@ -200,16 +200,17 @@ def dynamax_filter():
 
     def run(m0, p0, zs, a, q, c, r):
         n, mdim = a.shape[0], c.shape[0]
-        dyn = mod.ParamsLGSSMDynamics(weights=a, bias=jnp.zeros(n, a.dtype), input_weights=jnp.zeros((n, 0), a.dtype),
-                                      cov=q)
-        emi = mod.ParamsLGSSMEmissions(weights=c, bias=jnp.zeros(mdim, c.dtype),
-                                       input_weights=jnp.zeros((mdim, 0), c.dtype), cov=r)
+        dyn = mod.ParamsLGSSMDynamics(
+            weights=a, bias=jnp.zeros(n, a.dtype), input_weights=jnp.zeros((n, 0), a.dtype), cov=q
+        )
+        emi = mod.ParamsLGSSMEmissions(
+            weights=c, bias=jnp.zeros(mdim, c.dtype), input_weights=jnp.zeros((mdim, 0), c.dtype), cov=r
+        )
 
         def one(m, p, z_seq):
             # dynamax conditions on z_0 first: give it the predicted prior of step 1
             init = mod.ParamsLGSSMInitial(mean=a @ m, cov=a @ p @ a.T + q)
-            post = mod.lgssm_filter(mod.ParamsLGSSM(init, dyn, emi), z_seq,
-                                    jnp.zeros((z_seq.shape[0], 0), z_seq.dtype))
+            post = mod.lgssm_filter(mod.ParamsLGSSM(init, dyn, emi), z_seq, jnp.zeros((z_seq.shape[0], 0), z_seq.dtype))
             return post.filtered_means, post.marginal_loglik
 
         return jax.vmap(one)(m0, p0, zs)
@@ -237,8 +238,18 @@ def _jax_row(ctx: Context, size: dict, impl: str, fn, args, floor_s: float, note
     compile_s = ctx.compile_s((NAME, impl, b), fn, *args)
     call = lambda: jax.block_until_ready(fn(*args))
     t = time_calls(call, repeats=_reps(ctx, b), warmup=1, budget_s=30.0, min_repeats=3)
-    return make_row(NAME, impl, size, "in_scan", t, compile_s=compile_s, floor_s=floor_s,
-                    per_sequence_s=t.median_s / b, dtype="float32", note=note)
+    return make_row(
+        NAME,
+        impl,
+        size,
+        "in_scan",
+        t,
+        compile_s=compile_s,
+        floor_s=floor_s,
+        per_sequence_s=t.median_s / b,
+        dtype="float32",
+        note=note,
+    )
 
 
 def _numpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
@@ -247,10 +258,20 @@ def _numpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
     b = int(size["B"])
     a, q, c, r = model()
     m0, p0, zs = (np.asarray(x, DEFAULT_DTYPE) for x in (inp.m0, inp.p0, inp.zs))
-    t = time_calls(lambda: numpy_kf_batch(m0, p0, zs, a, q, c, r), repeats=_reps(ctx, b), warmup=1,
-                   budget_s=30.0, min_repeats=3)
-    return make_row(NAME, "numpy", size, "per_call", t, floor_s=floor_s, per_sequence_s=t.median_s / b,
-                    dtype="float32", note="vectorised over B, Python loop over T, Joseph form")
+    t = time_calls(
+        lambda: numpy_kf_batch(m0, p0, zs, a, q, c, r), repeats=_reps(ctx, b), warmup=1, budget_s=30.0, min_repeats=3
+    )
+    return make_row(
+        NAME,
+        "numpy",
+        size,
+        "per_call",
+        t,
+        floor_s=floor_s,
+        per_sequence_s=t.median_s / b,
+        dtype="float32",
+        note="vectorised over B, Python loop over T, Joseph form",
+    )
 
 
 def _filterpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
@@ -263,23 +284,46 @@ def _filterpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> di
     sub = min(b, FILTERPY_SUBSET)
     a, q, c, r = model()
     seqs = list(range(sub))
-    t = time_calls(lambda: filterpy_kf(inp.m0, inp.p0, inp.zs, a, q, c, r, seqs), repeats=ctx.reps(3),
-                   warmup=0, budget_s=10.0, min_repeats=2)
+    t = time_calls(
+        lambda: filterpy_kf(inp.m0, inp.p0, inp.zs, a, q, c, r, seqs),
+        repeats=ctx.reps(3),
+        warmup=0,
+        budget_s=10.0,
+        min_repeats=2,
+    )
     scale = b / sub
     extra = {"extrapolated_from": sub} if sub < b else {}
-    return make_row(NAME, "filterpy", size, "per_call", None, median_s=t.median_s * scale, floor_s=floor_s,
-                    min_s=t.min_s * scale, repeats=t.repeats, per_sequence_s=t.median_s / sub, dtype="float64",
-                    note="KalmanFilter.predict/update + log_likelihood per step, Python loops over sequences and T"
-                    + (f"; {sub} of {b} sequences timed, time x {scale:g}" if sub < b else ""),
-                    **extra)
+    return make_row(
+        NAME,
+        "filterpy",
+        size,
+        "per_call",
+        None,
+        median_s=t.median_s * scale,
+        floor_s=floor_s,
+        min_s=t.min_s * scale,
+        repeats=t.repeats,
+        per_sequence_s=t.median_s / sub,
+        dtype="float64",
+        note="KalmanFilter.predict/update + log_likelihood per step, Python loops over sequences and T"
+        + (f"; {sub} of {b} sequences timed, time x {scale:g}" if sub < b else ""),
+        **extra,
+    )
 
 
 def _dynamax_row(ctx: Context, size: dict, args, floor_s: float) -> dict:
     fn, why = dynamax_filter()
     if fn is None:
         return skipped_row(NAME, "dynamax", size, "in_scan", why)
-    return _jax_row(ctx, size, "dynamax", fn, args, floor_s,
-                    "jit(vmap(dynamax.linear_gaussian_ssm.lgssm_filter)), standard-form update P - K S K^T")
+    return _jax_row(
+        ctx,
+        size,
+        "dynamax",
+        fn,
+        args,
+        floor_s,
+        "jit(vmap(dynamax.linear_gaussian_ssm.lgssm_filter)), standard-form update P - K S K^T",
+    )
 
 
 def run(ctx: Context, size: dict) -> list[dict]:
@@ -290,9 +334,16 @@ def run(ctx: Context, size: dict) -> list[dict]:
     args = jax_args(inp)
     floor_s = ctx.floor(floor_bytes(b))
     rows = []
-    rows += guarded(ctx, NAME, "jaxnav", size, "in_scan",
-                    lambda: _jax_row(ctx, size, "jaxnav", jaxnav_filter(), args, floor_s,
-                                     "jit(vmap(lax.scan of kalman_predict + kalman_update))"))
+    rows += guarded(
+        ctx,
+        NAME,
+        "jaxnav",
+        size,
+        "in_scan",
+        lambda: _jax_row(
+            ctx, size, "jaxnav", jaxnav_filter(), args, floor_s, "jit(vmap(lax.scan of kalman_predict + kalman_update))"
+        ),
+    )
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, inp, floor_s))
     rows += guarded(ctx, NAME, "filterpy", size, "per_call", lambda: _filterpy_row(ctx, size, inp, floor_s))
     rows += guarded(ctx, NAME, "dynamax", size, "in_scan", lambda: _dynamax_row(ctx, size, args, floor_s))

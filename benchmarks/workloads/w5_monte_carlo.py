@@ -66,6 +66,7 @@ def batched_errors(s=None, method: str = METHOD):
 
     s = setting() if s is None else s
     if (s, method) not in _BATCHED:
+
         def errors(key):
             return run_once(key, method, s)[0]
 
@@ -97,17 +98,31 @@ def _measure(ctx: Context, size: dict, s) -> dict:
         out["errors"] = jax.block_until_ready(fn(keys))
 
     small = r <= 10
-    t = time_calls(call, repeats=ctx.reps(3) if small else 1, warmup=1 if small else 0, budget_s=60.0,
-                   min_repeats=1)
+    t = time_calls(call, repeats=ctx.reps(3) if small else 1, warmup=1 if small else 0, budget_s=60.0, min_repeats=1)
     err = out["errors"]
     dr = np.asarray(err.dr_mm)
-    row = make_row(NAME, "jaxnav", size, "per_call", None, median_s=t.median_s / r, compile_s=compile_s,
-                   min_s=t.min_s / r, repeats=t.repeats, call_s=t.median_s, method=METHOD,
-                   mean_dr_mm=float(np.mean(dr)), finite_runs=int(np.sum(np.isfinite(dr))),
-                   tags=int(s.layout.num_tags), robot_particles=s.robot_particles, tag_particles=s.tag_particles,
-                   laps=s.laps, dtype="float32",
-                   note=f"jit(vmap(run_once(key, 'pf_slam', HFSetting(density=16)).errors)) on run_keys(key 0, {r}); "
-                        "seconds per run = call / R")
+    row = make_row(
+        NAME,
+        "jaxnav",
+        size,
+        "per_call",
+        None,
+        median_s=t.median_s / r,
+        compile_s=compile_s,
+        min_s=t.min_s / r,
+        repeats=t.repeats,
+        call_s=t.median_s,
+        method=METHOD,
+        mean_dr_mm=float(np.mean(dr)),
+        finite_runs=int(np.sum(np.isfinite(dr))),
+        tags=int(s.layout.num_tags),
+        robot_particles=s.robot_particles,
+        tag_particles=s.tag_particles,
+        laps=s.laps,
+        dtype="float32",
+        note=f"jit(vmap(run_once(key, 'pf_slam', HFSetting(density=16)).errors)) on run_keys(key 0, {r}); "
+        "seconds per run = call / R",
+    )
     if temp is not None:
         row["memory_bytes"] = temp
     return row
@@ -130,7 +145,7 @@ register(
     Workload(
         name=NAME,
         title="W5 Monte Carlo: PF-SLAM, [W] Table 3.1 setting (16 tags/m², 500 robot / 100 tag particles, 3 laps), "
-              "R runs in one vmapped call (seconds per run)",
+        "R runs in one vmapped call (seconds per run)",
         sizes=[{"runs": r} for r in RUNS],
         quick_sizes=[{"runs": r} for r in QUICK_RUNS],
         run=run,

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import threading
 import weakref
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -22,9 +23,9 @@ import numpy as np
 
 __all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
 
-_COMPILED: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
+_COMPILED: weakref.WeakKeyDictionary[Callable, dict] = weakref.WeakKeyDictionary()
 _COMPILING = threading.Lock()  # guards _COMPILED and _LOCKS
-_LOCKS: "weakref.WeakKeyDictionary[Callable, dict]" = weakref.WeakKeyDictionary()
+_LOCKS: weakref.WeakKeyDictionary[Callable, dict] = weakref.WeakKeyDictionary()
 
 
 def compiled_vmap(
@@ -62,8 +63,12 @@ def compiled_vmap(
     options = dict(compiler_options or {})
     shared = tuple(shared)
     leaves, tree = jax.tree_util.tree_flatten((args, shared))
-    signature = (tree, tuple((np.shape(x), str(getattr(x, "dtype", None) or np.result_type(x))) for x in leaves), mode,
-                 tuple(sorted(options.items())))
+    signature = (
+        tree,
+        tuple((np.shape(x), str(getattr(x, "dtype", None) or np.result_type(x))) for x in leaves),
+        mode,
+        tuple(sorted(options.items())),
+    )
     with _COMPILING:
         per_fn = _COMPILED.setdefault(fn, {})
         lock = _LOCKS.setdefault(fn, {}).setdefault(signature, threading.Lock())
@@ -128,8 +133,7 @@ def monte_carlo(
         for leaf in jax.tree_util.tree_leaves(arg):
             if np.shape(leaf)[:1] != (num_runs,):
                 raise ValueError(
-                    f"run_args[{i}] must have leading axis num_runs={num_runs}, "
-                    f"got a leaf of shape {np.shape(leaf)}"
+                    f"run_args[{i}] must have leading axis num_runs={num_runs}, got a leaf of shape {np.shape(leaf)}"
                 )
     keys = run_keys(key, num_runs)
     batched = (lambda *a: compiled_vmap(fn, *a)(*a)) if jit else jax.vmap(fn)
@@ -157,8 +161,16 @@ def _pad_slice(x: Any, start: int, stop: int, size: int) -> jax.Array:
     return jnp.concatenate([part, pad], axis=0)
 
 
-def scan_filter(step: Callable, config: Any, params: Any, controls: jax.Array, observations: Any, state: Any,
-                key: jax.Array | None = None, unroll: int = 1) -> tuple[Any, Any]:
+def scan_filter(
+    step: Callable,
+    config: Any,
+    params: Any,
+    controls: jax.Array,
+    observations: Any,
+    state: Any,
+    key: jax.Array | None = None,
+    unroll: int = 1,
+) -> tuple[Any, Any]:
     """Every filter's ``run``: one ``lax.scan`` of ``step`` over time.
 
     With a ``key``, step ``t`` is ``step(fold_in(key, t), state, config, params, u_t, z_t)`` (so a
@@ -176,4 +188,3 @@ def scan_filter(step: Callable, config: Any, params: Any, controls: jax.Array, o
         return step(jax.random.fold_in(key, t), carry, config, params, u, z)
 
     return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations), unroll=unroll)
-

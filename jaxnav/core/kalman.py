@@ -42,7 +42,8 @@ NaN leaves these functions.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -364,8 +365,16 @@ def ekf_update_sequential(
     Returns per-slot ``nis`` and ``accepted`` (``[K]``) and the summed log-likelihood.
     """
     return _sequential(ekf_update)(
-        mean, cov, zs, h, noise_cov, aux, valid=valid, gate=gate,
-        state_angle_dims=state_angle_dims, obs_angle_dims=obs_angle_dims,
+        mean,
+        cov,
+        zs,
+        h,
+        noise_cov,
+        aux,
+        valid=valid,
+        gate=gate,
+        state_angle_dims=state_angle_dims,
+        obs_angle_dims=obs_angle_dims,
     )
 
 
@@ -400,7 +409,9 @@ def sigma_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 
     return SigmaWeights(jnp.asarray(wm, dtype), jnp.asarray(wc, dtype), math.sqrt(n + lam))
 
 
-def sigma_points(mean: jax.Array, cov: jax.Array, weights: SigmaWeights, state_angle_dims: tuple[int, ...] = ()) -> tuple[jax.Array, jax.Array]:
+def sigma_points(
+    mean: jax.Array, cov: jax.Array, weights: SigmaWeights, state_angle_dims: tuple[int, ...] = ()
+) -> tuple[jax.Array, jax.Array]:
     """``[2n + 1, n]`` sigma points ``x, x ± √(n + λ) Lᵢ`` and the Cholesky failure flag."""
     chol, failed = _cholesky(ensure_pd(cov))
     offsets = weights.scale * chol.T  # rows are the columns of L
@@ -408,7 +419,9 @@ def sigma_points(mean: jax.Array, cov: jax.Array, weights: SigmaWeights, state_a
     return _wrap(pts, state_angle_dims), failed
 
 
-def _unscented_moments(points: jax.Array, weights: SigmaWeights, angle_dims: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
+def _unscented_moments(
+    points: jax.Array, weights: SigmaWeights, angle_dims: tuple[int, ...]
+) -> tuple[jax.Array, jax.Array]:
     """Weighted mean (angles as wrapped offsets from the central point) and deviations."""
     ref = points[0]
     offsets = _diff(points, ref, angle_dims)
@@ -478,8 +491,17 @@ def ukf_update_sequential(
 ) -> UpdateResult:
     """:func:`ukf_update` over ``K`` observation slots in turn (see :func:`ekf_update_sequential`)."""
     return _sequential(ukf_update)(
-        mean, cov, zs, h, noise_cov, aux, valid=valid, gate=gate,
-        state_angle_dims=state_angle_dims, obs_angle_dims=obs_angle_dims, weights=weights,
+        mean,
+        cov,
+        zs,
+        h,
+        noise_cov,
+        aux,
+        valid=valid,
+        gate=gate,
+        state_angle_dims=state_angle_dims,
+        obs_angle_dims=obs_angle_dims,
+        weights=weights,
     )
 
 

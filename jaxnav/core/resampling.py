@@ -62,8 +62,8 @@ fraction of N, decided independently for every run when vmapped;
 
 from __future__ import annotations
 
-import math
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -431,7 +431,9 @@ def _on_log_weights(scheme: str, key, log_weights, num_samples, num_active=None)
     return resample_weights(key, jnp.exp(lw - jnp.max(lw)), num_samples, scheme, num_active)
 
 
-def systematic(key: jax.Array, log_weights: jax.Array, num_samples: int, num_active: jax.Array | None = None) -> jax.Array:
+def systematic(
+    key: jax.Array, log_weights: jax.Array, num_samples: int, num_active: jax.Array | None = None
+) -> jax.Array:
     """Systematic (low-variance) resampling, [A] App. B: one uniform ``u``, points ``(s + u)/M``.
 
     ``u = U/2³²`` with ``U = jax.random.bits(key, (), uint32)``; the ancestors are exactly
@@ -507,9 +509,7 @@ def get_resampler(name: str) -> Resampler:
     try:
         return SCHEMES[name]
     except KeyError:
-        raise ValueError(
-            f"resampling scheme {name!r} is unknown; choose one of {sorted(SCHEMES)}"
-        ) from None
+        raise ValueError(f"resampling scheme {name!r} is unknown; choose one of {sorted(SCHEMES)}") from None
 
 
 # --------------------------------------------------------------------------- inverse CDF of given points

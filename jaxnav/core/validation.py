@@ -110,6 +110,4 @@ def check_covariance(name: str, cov: Any, dim: int | None = None) -> None:
         np.linalg.cholesky(v)
     except np.linalg.LinAlgError:
         eig = np.linalg.eigvalsh(0.5 * (v + v.T))
-        raise ValueError(
-            f"{name} must be positive definite; its smallest eigenvalue is {eig.min():.3g}"
-        ) from None
+        raise ValueError(f"{name} must be positive definite; its smallest eigenvalue is {eig.min():.3g}") from None

@@ -178,9 +178,7 @@ def _circular_mean_from_probabilities(angles: jax.Array, probs: jax.Array) -> ja
     return fastmath.atan2(jnp.tensordot(probs, s, 1), jnp.tensordot(probs, c, 1))
 
 
-def particle_mean(
-    particles: jax.Array, log_weights: jax.Array, angle_dims: tuple[int, ...] = ()
-) -> jax.Array:
+def particle_mean(particles: jax.Array, log_weights: jax.Array, angle_dims: tuple[int, ...] = ()) -> jax.Array:
     """Weighted mean of ``particles [N, D]`` with the ``angle_dims`` averaged on the circle.
 
     For a pose ``(x, y, θ)`` use ``angle_dims=(2,)``.

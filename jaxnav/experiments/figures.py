@@ -20,8 +20,9 @@ the tests check:
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -54,15 +55,19 @@ def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray]) -> dict:
 
 
 def render_curves(result: dict) -> str:
-    lines = [f"{result['experiment']}: {result['title']}  ({result['runs']} runs per point"
-             f"{', quick variant' if result.get('quick') else ''}; mean [95 % interval])"]
+    lines = [
+        f"{result['experiment']}: {result['title']}  ({result['runs']} runs per point"
+        f"{', quick variant' if result.get('quick') else ''}; mean [95 % interval])"
+    ]
     for c in result["curves"]:
         lines.append(f"  {METHOD_LABELS.get(c['method'], c['method'])}, {c['quantity']}:")
         every = max(1, len(c["x"]) // 12)  # long curves (the kidnapping) are printed thinned; the JSON has them all
         for x, m, (lo, hi) in list(zip(c["x"], c["mean"], c["ci95"]))[::every]:
             lines.append(f"    {result['x_label']} = {x:g}: {m:8.1f} [{lo:.1f}, {hi:.1f}]")
         if "before_mm" in c:
-            lines.append(f"    mean error over the 5 s before: {c['before_mm']:.1f} mm, over 5–15 s after: {c['after_mm']:.1f} mm")
+            lines.append(
+                f"    mean error over the 5 s before: {c['before_mm']:.1f} mm, over 5–15 s after: {c['after_mm']:.1f} mm"
+            )
     if result.get("notes"):
         lines.append(result["notes"])
     return "\n".join(lines)
@@ -71,8 +76,12 @@ def render_curves(result: dict) -> str:
 def markdown_curves(result: dict) -> str:
     xs = result["curves"][0]["x"]
     head = "| method | quantity | " + " | ".join(f"{result['x_label']} = {x:g}" for x in xs) + " |"
-    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])",
-             "", head, "|" + " --- |" * (2 + len(xs))]
+    lines = [
+        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])",
+        "",
+        head,
+        "|" + " --- |" * (2 + len(xs)),
+    ]
     for c in result["curves"]:
         cells = [f"{m:.1f} [{lo:.1f}, {hi:.1f}]" for m, (lo, hi) in zip(c["mean"], c["ci95"])]
         lines.append(f"| {METHOD_LABELS.get(c['method'], c['method'])} | {c['quantity']} | " + " | ".join(cells) + " |")
@@ -82,7 +91,9 @@ def markdown_curves(result: dict) -> str:
 def plot_curves(result: dict, path: str) -> None:
     import matplotlib.pyplot as plt
 
-    quantities = sorted({c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q))
+    quantities = sorted(
+        {c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q)
+    )
     fig, axes = plt.subplots(1, len(quantities), figsize=(6 * len(quantities), 4.4), squeeze=False)
     for ax, q in zip(axes[0], quantities):
         for c in (c for c in result["curves"] if c["quantity"] == q):
@@ -108,8 +119,19 @@ def curve_experiment(name, title, x_label, cells, summarize, notes="", x_log=Fal
     def summarize_all(raw, cell_list, quick):
         return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}
 
-    return register(Experiment(name, title, cells, summarize_all, render_curves, markdown_curves, plot_curves, notes,
-                               compiler_options=sw.LIGHT_COMPILE))
+    return register(
+        Experiment(
+            name,
+            title,
+            cells,
+            summarize_all,
+            render_curves,
+            markdown_curves,
+            plot_curves,
+            notes,
+            compiler_options=sw.LIGHT_COMPILE,
+        )
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -138,7 +160,9 @@ def _fig35_fn(setting: hf.HFSetting):
         err = 1000 * jnp.linalg.norm(trace.slot_estimates - tags[jnp.clip(trace.slot_ids, 0)], axis=-1)
         b = jnp.searchsorted(edges, trace.slot_counts, side="right") - 1  # bin of each (step, slot)
         one_hot = (b[..., None] == jnp.arange(len(DETECTION_BINS))) & valid[..., None]
-        return TagErrorBins(jnp.sum(jnp.where(one_hot, err[..., None], 0.0), axis=(0, 1)), jnp.sum(one_hot, axis=(0, 1)))
+        return TagErrorBins(
+            jnp.sum(jnp.where(one_hot, err[..., None], 0.0), axis=(0, 1)), jnp.sum(one_hot, axis=(0, 1))
+        )
 
     return fn
 
@@ -157,8 +181,12 @@ def _fig35_summary(raw, cells, quick):
 
 
 curve_experiment(
-    "fig-3.5", "PF-SLAM tag error against the number of detections ([W] Fig. 3.5)", "detections n",
-    _fig35_cells, _fig35_summary, x_log=True,
+    "fig-3.5",
+    "PF-SLAM tag error against the number of detections ([W] Fig. 3.5)",
+    "detections n",
+    _fig35_cells,
+    _fig35_summary,
+    x_log=True,
     notes="[W]: the error falls as a tag is detected from more places; it converges slowly after ~65 detections.",
 )
 
@@ -189,8 +217,12 @@ def _fig37_summary(raw, cells, quick):
 
 
 curve_experiment(
-    "fig-3.7", "Errors against robot particles, PF-SLAM vs FastSLAM, 16 tags/m² rectangle ([W] Fig. 3.7)",
-    "robot particles", _fig37_cells, _fig37_summary, x_log=True,
+    "fig-3.7",
+    "Errors against robot particles, PF-SLAM vs FastSLAM, 16 tags/m² rectangle ([W] Fig. 3.7)",
+    "robot particles",
+    _fig37_cells,
+    _fig37_summary,
+    x_log=True,
     notes="[W]: PF-SLAM is accurate and stable from few particles; FastSLAM's errors are large with few and settle with many.",
 )
 
@@ -206,7 +238,9 @@ def _fig44_cells(quick):
         for side in sides:
             # one rectangle, the first of Table 4.1's: every (side, rectangle) pair is its own compilation
             for i, rect in enumerate(FIVE_RECTANGLES[:1]):
-                s = hf.HFSetting(density=4.0, reader_side=side, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=rect)
+                s = hf.HFSetting(
+                    density=4.0, reader_side=side, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=rect
+                )
                 out.append(Cell(f"{method}|{side:g}|{i}", f"{side:g}", method, quick_setting(s) if quick else s))
     return out
 
@@ -216,15 +250,20 @@ def _fig44_summary(raw, cells, quick):
     for method in ("ps_slam", "pf_slam", "fastslam"):
         sides = sorted({c.setting.reader_side for c in cells if c.method == method})
         for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
-            per_point = [np.concatenate([raw[c.id][col] for c in cells if c.method == method and c.setting.reader_side == s])
-                         for s in sides]
+            per_point = [
+                np.concatenate([raw[c.id][col] for c in cells if c.method == method and c.setting.reader_side == s])
+                for s in sides
+            ]
             curves.append({"method": method, "quantity": label, **_summaries([1000 * s for s in sides], per_point)})
     return curves
 
 
 curve_experiment(
-    "fig-4.4", "Errors against the reader footprint, 4 tags/m², one rectangle ([W] Fig. 4.4)", "reader side (mm)",
-    _fig44_cells, _fig44_summary,
+    "fig-4.4",
+    "Errors against the reader footprint, 4 tags/m², one rectangle ([W] Fig. 4.4)",
+    "reader side (mm)",
+    _fig44_cells,
+    _fig44_summary,
     notes="[W]: PS ≈ PF below ~180 mm, PS better above; FastSLAM worst throughout. Rectangle: the first of Table 4.1's five.",
 )
 
@@ -267,15 +306,23 @@ def _kidnap_summary(raw, cells, quick):
         steps = err.shape[1]
         window = range(max(0, k - 100), min(steps, k + 300), 5)
         dt = c.setting.dt
-        curves.append({"method": c.method, "quantity": "robot error (mm)",
-                       **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window]),
-                       "before_mm": sw.mean_ci(err[:, max(0, k - 50):k].mean(axis=1))[0],
-                       "after_mm": sw.mean_ci(err[:, k + 50:k + 150].mean(axis=1))[0]})
+        curves.append(
+            {
+                "method": c.method,
+                "quantity": "robot error (mm)",
+                **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window]),
+                "before_mm": sw.mean_ci(err[:, max(0, k - 50) : k].mean(axis=1))[0],
+                "after_mm": sw.mean_ci(err[:, k + 50 : k + 150].mean(axis=1))[0],
+            }
+        )
     return curves
 
 
 curve_experiment(
-    "kidnapping", "Robot error around a kidnapping, 16 tags/m², 60 mm readers ([W] §3.4.3, Fig. 3.12)",
-    "time since the kidnapping (s)", _kidnap_cells, _kidnap_summary,
+    "kidnapping",
+    "Robot error around a kidnapping, 16 tags/m², 60 mm readers ([W] §3.4.3, Fig. 3.12)",
+    "time since the kidnapping (s)",
+    _kidnap_cells,
+    _kidnap_summary,
     notes="[W]: the error jumps when the robot is kidnapped and returns to its level before within a short time.",
 )

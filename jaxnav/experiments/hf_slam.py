@@ -201,8 +201,17 @@ def make_world(key: jax.Array, setting: HFSetting) -> World:
     if setting.trajectory == "kidnapping":
         x0, y0, w, h = setting.rectangle
         run = tc.kidnapping_scenario(
-            k_odo, carpet, sensor, setting.motion(), w, h, (x0, y0), setting.speed, setting.dt,
-            laps_after=setting.laps, footprint_side=setting.reader_side,
+            k_odo,
+            carpet,
+            sensor,
+            setting.motion(),
+            w,
+            h,
+            (x0, y0),
+            setting.speed,
+            setting.dt,
+            laps_after=setting.laps,
+            footprint_side=setting.reader_side,
         )
     else:
         start, controls = _controls(k_path, setting)
@@ -266,8 +275,11 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
         slot_of = np.full(num_tags + 1, num_map, np.int32)
         slot_of[reach] = np.arange(num_map, dtype=np.int32)
         config = fastslam.FastSLAMConfig(
-            num_particles=setting.robot_particles, num_landmarks=num_map, version=setting.fastslam_version,
-            motion_model="omni", observation_model="hf_footprint",
+            num_particles=setting.robot_particles,
+            num_landmarks=num_map,
+            version=setting.fastslam_version,
+            motion_model="omni",
+            observation_model="hf_footprint",
             map_copy="gather",  # run_once is vmapped over runs: see FastSLAMConfig.map_copy
             parallel_slots=fastslam_parallel_slots(setting),
         )
@@ -287,7 +299,11 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
     else:
         module = ps_slam
         config = ps_slam.PSSLAMConfig(setting.robot_particles, setting.tag_particles, num_tags, lag=setting.lag)
-        jitter = ps_slam.default_jitter(sensor) if setting.smoother_jitter is None else jnp.asarray(setting.smoother_jitter, jnp.float32)
+        jitter = (
+            ps_slam.default_jitter(sensor)
+            if setting.smoother_jitter is None
+            else jnp.asarray(setting.smoother_jitter, jnp.float32)
+        )
         params = ps_slam.PSSLAMParams(setting.motion(), sensor, jitter)
     module.check_capacity(config, num_tags)
     state = module.init(k_init, config, params, start)
@@ -301,7 +317,11 @@ def detection_counts(run: tc.HFRun, num_tags: int) -> jax.Array:
     det = run.detections
     t = det.ids.shape[0]
     # one count per (step, tag), however many readers saw it
-    per_step = jnp.zeros((t, num_tags), bool).at[jnp.arange(t)[:, None], jnp.where(det.mask, det.ids, num_tags)].set(True, mode="drop")
+    per_step = (
+        jnp.zeros((t, num_tags), bool)
+        .at[jnp.arange(t)[:, None], jnp.where(det.mask, det.ids, num_tags)]
+        .set(True, mode="drop")
+    )
     return jnp.sum(per_step, axis=0)
 
 
@@ -379,7 +399,9 @@ def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, p
     ax_map.set_aspect("equal")
     ax_map.set_xlabel("x (m)")
     ax_map.set_ylabel("y (m)")
-    ax_map.set_title(f"{method}: {setting.density:g} tags/m², {1000 * setting.reader_side:g} mm readers, {setting.trajectory}")
+    ax_map.set_title(
+        f"{method}: {setting.density:g} tags/m², {1000 * setting.reader_side:g} mm readers, {setting.trajectory}"
+    )
     ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
 
     err = 1000 * np.linalg.norm(est[:, :2] - truth[:, :2], axis=1)

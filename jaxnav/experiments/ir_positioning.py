@@ -59,8 +59,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -227,8 +228,9 @@ def _path_and_record(s: IRSetting) -> tuple[np.ndarray, np.ndarray]:
         nx, ny = s.spots
         # rows from the east end, so that the first spot follows the lead-in with no long leg
         grid = ir_world.spot_grid(nx, ny, x=(2.9, 0.3))
-        tour = ir_world.spot_tour(grid, s.speed, s.dt, s.dwell, lead_in=np.asarray(LEAD_IN), serpentine=nx,
-                                  num_steps=s.num_steps)
+        tour = ir_world.spot_tour(
+            grid, s.speed, s.dt, s.dwell, lead_in=np.asarray(LEAD_IN), serpentine=nx, num_steps=s.num_steps
+        )
         return tour.poses, tour.spot[1:]
     if s.drive == "loop":
         lap = _loop_length() / s.speed / s.dt  # steps per lap
@@ -314,7 +316,8 @@ def score(estimate: jax.Array, truth: jax.Array, record: jax.Array) -> tuple[jax
     def mean_pose(p):
         sums = jax.ops.segment_sum(
             jnp.stack([p[:, 0], p[:, 1], jnp.cos(p[:, 2]), jnp.sin(p[:, 2]), jnp.ones_like(p[:, 0])], axis=-1),
-            seg, num_segments=t + 1,
+            seg,
+            num_segments=t + 1,
         )[:t]
         n = jnp.maximum(sums[:, 4], 1.0)
         return sums[:, 0] / n, sums[:, 1] / n, jnp.arctan2(sums[:, 3], sums[:, 2]), sums[:, 4] > 0
@@ -329,7 +332,7 @@ def score(estimate: jax.Array, truth: jax.Array, record: jax.Array) -> tuple[jax
     return mean, worst
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def run_once(algorithm: str, num_particles: int):
     """``(key, inputs: DriveInputs) -> IRErrors`` of one seeded run (cached: one function per pair).
 
@@ -401,8 +404,15 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
     config = ir_mcl.IRMCLConfig(num_particles=setting.num_particles)
     sim, trace = _simulate_and_filter(key, inputs, config, ir_world.layout_area(ir.experiment_layout()))
     odometry = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
-    return Drive(setting, inputs, sim, trace, odometry, _errors(trace.estimate, sim, inputs, trace),
-                 _errors(odometry, sim, inputs))
+    return Drive(
+        setting,
+        inputs,
+        sim,
+        trace,
+        odometry,
+        _errors(trace.estimate, sim, inputs, trace),
+        _errors(odometry, sim, inputs),
+    )
 
 
 def format_errors(rows: Sequence[tuple[str, IRErrors]]) -> str:
@@ -411,8 +421,11 @@ def format_errors(rows: Sequence[tuple[str, IRErrors]]) -> str:
     lines = [head]
     for name, e in rows:
         vals = [float(v) for v in e[:8]]
-        lines.append(f"{name:<10}" + "".join(f"{_fmt(c, v):>10}" for c, v in zip(COLUMNS, vals[:4]))
-                     + "".join(f"{_fmt(c, v):>14}" for c, v in zip(COLUMNS, vals[4:])))
+        lines.append(
+            f"{name:<10}"
+            + "".join(f"{_fmt(c, v):>10}" for c, v in zip(COLUMNS, vals[:4]))
+            + "".join(f"{_fmt(c, v):>14}" for c, v in zip(COLUMNS, vals[4:]))
+        )
     return "\n".join(lines)
 
 
@@ -441,8 +454,14 @@ def plot_drive(drive: Drive, path: str | None = None, ax=None):
     est = np.asarray(drive.trace.estimate)
     started = np.asarray(drive.trace.started)
     ax.plot(truth[:, 0], truth[:, 1], "k-", lw=1.0, label="true path")
-    ax.plot(np.where(started, est[:, 0], np.nan), np.where(started, est[:, 1], np.nan), "-", c="tab:blue", lw=0.8,
-            label=f"IR MCL (dr {float(drive.mcl.dr_mm):.0f} mm)")
+    ax.plot(
+        np.where(started, est[:, 0], np.nan),
+        np.where(started, est[:, 1], np.nan),
+        "-",
+        c="tab:blue",
+        lw=0.8,
+        label=f"IR MCL (dr {float(drive.mcl.dr_mm):.0f} mm)",
+    )
     odo = np.asarray(drive.odometry)
     ax.plot(odo[:, 0], odo[:, 1], "--", c="tab:red", lw=0.8, label=f"odometry (dr {float(drive.dead.dr_mm):.0f} mm)")
     ax.set_aspect("equal")
@@ -484,8 +503,15 @@ class IRRow:
 
 
 def _setting_json(s: IRSetting) -> dict:
-    return {"layout": s.layout, "failed_code": s.failed_code, "height_m": s.height, "speed_mm_s": round(1000 * s.speed, 3),
-            "drive": s.drive, "num_particles": s.num_particles, "installation_mm": round(1000 * s.installation_sd, 3)}
+    return {
+        "layout": s.layout,
+        "failed_code": s.failed_code,
+        "height_m": s.height,
+        "speed_mm_s": round(1000 * s.speed, 3),
+        "drive": s.drive,
+        "num_particles": s.num_particles,
+        "installation_mm": round(1000 * s.installation_sd, 3),
+    }
 
 
 def _quick(s: IRSetting, num_steps: int | None) -> IRSetting:
@@ -512,14 +538,26 @@ def summarize_errors(values: dict, paper: tuple | None, paper_max: tuple | None)
     for i, col in enumerate(COLUMNS):
         m, lo, hi = sw.mean_ci(values[col])
         mm, mlo, mhi = sw.mean_ci(values[col + "_max"])
-        out[col] = {"mean": m, "ci95": [lo, hi], "median": float(np.median(values[col])), "max": mm, "max_ci95": [mlo, mhi],
-                    "paper": None if paper is None else paper[i],
-                    "paper_max": None if paper_max is None else paper_max[i]}
+        out[col] = {
+            "mean": m,
+            "ci95": [lo, hi],
+            "median": float(np.median(values[col])),
+            "max": mm,
+            "max_ci95": [mlo, mhi],
+            "paper": None if paper is None else paper[i],
+            "paper_max": None if paper_max is None else paper_max[i],
+        }
     return out
 
 
-def ir_experiment(name: str, title: str, rows: Sequence[IRRow], notes: str = "",
-                  row_key: str | None = None, quick_rows: Sequence[int] | None = None) -> Experiment:
+def ir_experiment(
+    name: str,
+    title: str,
+    rows: Sequence[IRRow],
+    notes: str = "",
+    row_key: str | None = None,
+    quick_rows: Sequence[int] | None = None,
+) -> Experiment:
     """Build and register an IR experiment from its rows.
 
     ``row_key``: an extra JSON field per row (``"height_m"``, ``"speed_mm_s"``);
@@ -543,8 +581,12 @@ def ir_experiment(name: str, title: str, rows: Sequence[IRRow], notes: str = "",
         out_rows = []
         for cell in cell_list:
             row, vals = by_label[cell.row], raw[cell.id]
-            entry = {"row": row.row, "method": row.name, "algorithm": row.algorithm,
-                     "setting": _setting_json(cell.setting)}
+            entry = {
+                "row": row.row,
+                "method": row.name,
+                "algorithm": row.algorithm,
+                "setting": _setting_json(cell.setting),
+            }
             if row_key == "height_m":
                 entry["height_m"] = row.setting.height
             if row_key == "speed_mm_s":
@@ -557,8 +599,9 @@ def ir_experiment(name: str, title: str, rows: Sequence[IRRow], notes: str = "",
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
-    return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes,
-                               batching="map"))
+    return register(
+        Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes, batching="map")
+    )
 
 
 def _fmt(col: str, v: float | None) -> str:
@@ -569,15 +612,22 @@ def _fmt(col: str, v: float | None) -> str:
 
 def render_table(result: dict) -> str:
     """Terminal table: per row, ours (mean ± half-interval, mean maximum) and [W]'s average / maximum."""
-    lines = [f"{result['experiment']}: {result['title']}  ({result['runs']} runs per row"
-             f"{', quick variant' if result.get('quick') else ''}; average over records: mean ± 95 % half-interval "
-             "over runs; max: mean over runs of the run's maximum)"]
-    head = (f"{'row':<16}{'':<5}" + "".join(f"{h:>18}" for h in COLUMN_HEADS)
-            + "".join(f"{'max ' + h:>14}" for h in COLUMN_HEADS) + f"{'median dr':>12}")
+    lines = [
+        f"{result['experiment']}: {result['title']}  ({result['runs']} runs per row"
+        f"{', quick variant' if result.get('quick') else ''}; average over records: mean ± 95 % half-interval "
+        "over runs; max: mean over runs of the run's maximum)"
+    ]
+    head = (
+        f"{'row':<16}{'':<5}"
+        + "".join(f"{h:>18}" for h in COLUMN_HEADS)
+        + "".join(f"{'max ' + h:>14}" for h in COLUMN_HEADS)
+        + f"{'median dr':>12}"
+    )
     lines += [head, "-" * len(head)]
     for r in result["rows"]:
-        ours = "".join(f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>18}"
-                       for c in COLUMNS)
+        ours = "".join(
+            f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>18}" for c in COLUMNS
+        )
         ours += "".join(f"{_fmt(c, r[c]['max']):>14}" for c in COLUMNS)
         ours += f"{_fmt('dr_mm', r['dr_mm'].get('median')):>12}"
         lines.append(f"{r['row']:<16}{'ours':<5}{ours}")
@@ -592,17 +642,35 @@ def render_table(result: dict) -> str:
 
 def markdown_table(result: dict) -> str:
     """Markdown: per column ``mean [lo, hi] ([W])`` for the average and ``max ([W])`` for the maximum."""
-    head = ("| row | " + " | ".join(COLUMN_HEADS) + " | " + " | ".join("max " + h for h in COLUMN_HEADS)
-            + " | median dr [mm] |")
-    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per row; average: mean "
-             "[95 % interval] (thesis); max: mean over runs of each run's maximum (thesis); median over runs of "
-             "the average dr)", "", head, "|" + " --- |" * (2 + 2 * len(COLUMNS))]
+    head = (
+        "| row | "
+        + " | ".join(COLUMN_HEADS)
+        + " | "
+        + " | ".join("max " + h for h in COLUMN_HEADS)
+        + " | median dr [mm] |"
+    )
+    lines = [
+        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per row; average: mean "
+        "[95 % interval] (thesis); max: mean over runs of each run's maximum (thesis); median over runs of "
+        "the average dr)",
+        "",
+        head,
+        "|" + " --- |" * (2 + 2 * len(COLUMNS)),
+    ]
     for r in result["rows"]:
-        avg = [f"{_fmt(c, r[c]['mean'])} [{_fmt(c, r[c]['ci95'][0])}, {_fmt(c, r[c]['ci95'][1])}] "
-               f"({_fmt(c, r[c]['paper'])})" for c in COLUMNS]
+        avg = [
+            f"{_fmt(c, r[c]['mean'])} [{_fmt(c, r[c]['ci95'][0])}, {_fmt(c, r[c]['ci95'][1])}] "
+            f"({_fmt(c, r[c]['paper'])})"
+            for c in COLUMNS
+        ]
         mx = [f"{_fmt(c, r[c]['max'])} ({_fmt(c, r[c]['paper_max'])})" for c in COLUMNS]
-        lines.append(f"| {r['row']} | " + " | ".join(avg) + " | " + " | ".join(mx)
-                     + f" | {_fmt('dr_mm', r['dr_mm'].get('median'))} |")
+        lines.append(
+            f"| {r['row']} | "
+            + " | ".join(avg)
+            + " | "
+            + " | ".join(mx)
+            + f" | {_fmt('dr_mm', r['dr_mm'].get('median'))} |"
+        )
     if result.get("notes"):
         lines += ["", result["notes"]]
     return "\n".join(lines)
@@ -642,7 +710,8 @@ _SPOTS = IRSetting()
 _LOOP = IRSetting(drive="loop")
 
 ir_experiment(
-    "table-5.2", "IR positioning at 70 marked spots: proposed layout, 11 unique IDs, odometry ([W] Table 5.2)",
+    "table-5.2",
+    "IR positioning at 70 marked spots: proposed layout, 11 unique IDs, odometry ([W] Table 5.2)",
     [
         IRRow("proposed", "mcl", _SPOTS, (22, 29, 0.06, 36), (69, 79, 0.23, 105)),
         IRRow("unique-11", "mcl", replace(_SPOTS, layout="unique-11"), (30, 25, 0.04, 39), (87, 91, 0.10, 126)),
@@ -665,31 +734,36 @@ _T53 = {  # [W] Table 5.3: height -> (average x, y, θ, dr), (maximum x, y, θ, 
 }
 
 ir_experiment(
-    "table-5.3", "IR positioning at the 70 spots against the emitter-receiver height, eq. 5.3 calibrated at 1.2 m "
-    "([W] Table 5.3)",
+    "table-5.3",
+    "IR positioning at the 70 spots against the emitter-receiver height, eq. 5.3 calibrated at 1.2 m ([W] Table 5.3)",
     [IRRow("proposed", "mcl", replace(_SPOTS, height=h), *_T53[h], label=f"{h:.2f} m") for h in HEIGHTS],
-    row_key="height_m", quick_rows=(0, 5, 10),
+    row_key="height_m",
+    quick_rows=(0, 5, 10),
 )
 
 ir_experiment(
-    "ir-failure", "IR positioning with both emitters of one repeated ID failed, three laps ([W] §5.4.5, Fig. 5.16)",
+    "ir-failure",
+    "IR positioning with both emitters of one repeated ID failed, three laps ([W] §5.4.5, Fig. 5.16)",
     [
         IRRow("proposed", "mcl", _LOOP, label="all emitters"),
         IRRow("failed-2", "mcl", replace(_LOOP, failed_code=FAILED_CODE), label="2 failed"),
     ],
     notes=f"The two emitters of repeated ID {FAILED_CODE} are dark in the simulator; the filter's map still has "
-          "them. Laps 2-3 of three are scored. [W] shows the path only.",
+    "them. Laps 2-3 of three are scored. [W] shows the path only.",
 )
 
 ir_experiment(
-    "ir-speeds", "IR positioning at 100-300 mm/s, three laps ([W] §5.4.4, Fig. 5.15)",
+    "ir-speeds",
+    "IR positioning at 100-300 mm/s, three laps ([W] §5.4.4, Fig. 5.15)",
     [IRRow("proposed", "mcl", replace(_LOOP, speed=v), label=f"{1000 * v:.0f} mm/s") for v in SPEEDS],
     notes="Laps 2-3 of three are scored. [W] shows the paths only and says speed does not change the accuracy.",
-    row_key="speed_mm_s", quick_rows=(2, 4),
+    row_key="speed_mm_s",
+    quick_rows=(2, 4),
 )
 
 ir_experiment(
-    "ir-rotation", "IR positioning on the trajectory with five turns, unknown start ([W] §5.4.3, Fig. 5.14)",
+    "ir-rotation",
+    "IR positioning on the trajectory with five turns, unknown start ([W] §5.4.3, Fig. 5.14)",
     [
         IRRow("proposed", "mcl", IRSetting(drive="rotation")),
         IRRow("odometry", "odometry", IRSetting(drive="rotation")),
@@ -701,9 +775,14 @@ INSTALLATION_SDS = (0.0, 0.01, 0.02, 0.03)
 """``ir-installation``: sd of the emitters' installation error (m)."""
 
 ir_experiment(
-    "ir-installation", "IR positioning at the 70 spots with emitters installed off their map positions (ours, not in [W])",
-    [IRRow("proposed", "mcl", replace(_SPOTS, installation_sd=sd), label=f"{1000 * sd:.0f} mm") for sd in INSTALLATION_SDS],
+    "ir-installation",
+    "IR positioning at the 70 spots with emitters installed off their map positions (ours, not in [W])",
+    [
+        IRRow("proposed", "mcl", replace(_SPOTS, installation_sd=sd), label=f"{1000 * sd:.0f} mm")
+        for sd in INSTALLATION_SDS
+    ],
     notes="Each run draws every emitter's true position around its map position with the given sd per axis; the filter "
-          "keeps the map. [W] §5.4.2 names installation errors as a source of its 36 mm; our other experiments have none.",
-    row_key="installation_mm", quick_rows=(0, 3),
+    "keeps the map. [W] §5.4.2 names installation errors as a source of its 36 mm; our other experiments have none.",
+    row_key="installation_mm",
+    quick_rows=(0, 3),
 )

@@ -29,8 +29,9 @@ Usage::
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -43,7 +44,15 @@ from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.slam import ekf_slam, fastslam
 
-__all__ = ["ALGORITHMS", "MRCLAMSettings", "AlgorithmResult", "run_algorithm", "run_robot", "format_table", "plot_robot"]
+__all__ = [
+    "ALGORITHMS",
+    "MRCLAMSettings",
+    "AlgorithmResult",
+    "run_algorithm",
+    "run_robot",
+    "format_table",
+    "plot_robot",
+]
 
 ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
 
@@ -164,7 +173,9 @@ _RUNNERS: dict[str, Callable] = {
 }
 
 
-def run_algorithm(name: str, seq: data.MRCLAMSequence, key: jax.Array, settings: MRCLAMSettings = MRCLAMSettings()) -> AlgorithmResult:
+def run_algorithm(
+    name: str, seq: data.MRCLAMSequence, key: jax.Array, settings: MRCLAMSettings = MRCLAMSettings()
+) -> AlgorithmResult:
     """Run one algorithm on a sequence and score it against the ground truth."""
     if name not in _RUNNERS:
         raise ValueError(f"algorithm must be one of {list(ALGORITHMS)}, got {name!r}")
@@ -200,8 +211,12 @@ def run_robot(
         if name not in _RUNNERS:
             raise ValueError(f"algorithm must be one of {list(ALGORITHMS)}, got {name!r}")
     seq = data.to_filter_steps(
-        data.load_robot(robot, root), dt=settings.dt, t_start=t_start, duration=duration,
-        max_obs=settings.max_obs, keep_outliers=True,
+        data.load_robot(robot, root),
+        dt=settings.dt,
+        t_start=t_start,
+        duration=duration,
+        max_obs=settings.max_obs,
+        keep_outliers=True,
     )
     key = jax.random.PRNGKey(seed)
     results = [run_algorithm(name, seq, jax.random.fold_in(key, i), settings) for i, name in enumerate(algorithms)]
@@ -240,8 +255,14 @@ def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], pat
         ax_path.plot(r.estimates[:, 0], r.estimates[:, 1], lw=1, label=r.name)
         if r.landmarks is not None:
             seen = r.seen.astype(bool)
-            ax_path.plot(r.landmarks[seen, 0], r.landmarks[seen, 1], markers.get(r.name, "x"), mfc="none", ms=8,
-                         label=f"{r.name} map")
+            ax_path.plot(
+                r.landmarks[seen, 0],
+                r.landmarks[seen, 1],
+                markers.get(r.name, "x"),
+                mfc="none",
+                ms=8,
+                label=f"{r.name} map",
+            )
         ax_err.plot(times, np.asarray(metrics.position_errors(r.estimates, truth)), lw=1, label=r.name)
     ax_path.set_aspect("equal")
     ax_path.set_xlabel("x (m)")
@@ -256,5 +277,3 @@ def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], pat
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-

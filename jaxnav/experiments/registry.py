@@ -19,8 +19,9 @@ from __future__ import annotations
 import functools
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import numpy as np
@@ -171,10 +172,19 @@ def run(
     cells = exp.cells(quick)
     checkpoint = None if out_dir is None else os.path.join(out_dir, f"{name}.{'quick.' if quick else ''}runs.json")
     raw = sw.sweep(
-        [(c.id, c.run_fn(), c.args) for c in cells], runs, key, checkpoint, chunk_size, progress,
+        [(c.id, c.run_fn(), c.args) for c in cells],
+        runs,
+        key,
+        checkpoint,
+        chunk_size,
+        progress,
         meta={"experiment": name, "quick": quick},
-        compiler_options=(sw.FAST_COMPILE if quick else exp.compiler_options) if compiler_options is None else compiler_options,
-        batching=exp.batching, workers=workers, fresh=fresh,
+        compiler_options=(sw.FAST_COMPILE if quick else exp.compiler_options)
+        if compiler_options is None
+        else compiler_options,
+        batching=exp.batching,
+        workers=workers,
+        fresh=fresh,
     )
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}

@@ -34,8 +34,9 @@ import math
 import os
 import sys
 import zlib
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
@@ -43,7 +44,14 @@ import numpy as np
 from jaxnav.core.batch import compiled_vmap
 
 __all__ = [
-    "cell_key", "run_key", "sweep", "default_workers", "mean_ci", "student_t_quantile", "Progress", "FAST_COMPILE",
+    "cell_key",
+    "run_key",
+    "sweep",
+    "default_workers",
+    "mean_ci",
+    "student_t_quantile",
+    "Progress",
+    "FAST_COMPILE",
     "LIGHT_COMPILE",
 ]
 
@@ -217,13 +225,18 @@ def sweep(
         raise ValueError(f"cell ids must be unique, got {ids}")
     from jaxnav import __version__
 
-    header = {"cells": ids, "seed": np.asarray(jax.random.key_data(key)).tolist(), "jaxnav": __version__, **(meta or {})}
+    header = {
+        "cells": ids,
+        "seed": np.asarray(jax.random.key_data(key)).tolist(),
+        "jaxnav": __version__,
+        **(meta or {}),
+    }
     data = {"meta": header, "cells": {}} if fresh else _load(path, header)
     bar = Progress(runs * len(cells), "Monte Carlo", progress)
 
     # Every chunk still to run, in order: (cell_id, start, stop, keys padded to a full chunk: one compilation).
     work = []
-    for cell_id, fn, shared in cells:
+    for cell_id, _fn, _shared in cells:
         stored = data["cells"].setdefault(cell_id, {})
         done = len(next(iter(stored.values()))) if stored else 0
         bar.update(min(done, runs))

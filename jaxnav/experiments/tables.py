@@ -11,8 +11,8 @@ and cut the particles so that the test suite runs them in seconds.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Sequence
 
 import numpy as np
 
@@ -58,8 +58,11 @@ def quick_setting(s: hf.HFSetting) -> hf.HFSetting:
         return replace(q, carpet=(1.5, 1.5))
     x0, y0, w, h = s.rectangle
     scale = 0.5
-    return replace(q, carpet=(min(s.carpet[0], x0 + scale * w + 0.5), min(s.carpet[1], y0 + scale * h + 0.5)),
-                   rectangle=(x0, y0, scale * w, scale * h))
+    return replace(
+        q,
+        carpet=(min(s.carpet[0], x0 + scale * w + 0.5), min(s.carpet[1], y0 + scale * h + 0.5)),
+        rectangle=(x0, y0, scale * w, scale * h),
+    )
 
 
 def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str = "") -> Experiment:
@@ -78,16 +81,31 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
         out_rows = []
         for row in rows:
             members = [c for c in cell_list if c.row == row.label and c.method == row.method]
-            entry = {"row": row.label, "setting": setting_label(members[0].setting), "method": row.method,
-                     "cells": len(members)}
+            entry = {
+                "row": row.label,
+                "setting": setting_label(members[0].setting),
+                "method": row.method,
+                "cells": len(members),
+            }
             for col, paper in zip(ERROR_COLUMNS, row.paper):
                 values = np.concatenate([raw[c.id][col] for c in members])
                 entry[col] = summarize_column(values, paper)
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
-    return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes,
-                               compiler_options=sw.LIGHT_COMPILE))
+    return register(
+        Experiment(
+            name,
+            title,
+            cells,
+            summarize,
+            render_table,
+            markdown_table,
+            plot_table,
+            notes,
+            compiler_options=sw.LIGHT_COMPILE,
+        )
+    )
 
 
 def _fmt(col: str, v: float | None) -> str:
@@ -98,15 +116,19 @@ def _fmt(col: str, v: float | None) -> str:
 
 def render_table(result: dict) -> str:
     """Terminal table: per row, ours (mean ± half-interval) and [W]'s value."""
-    lines = [f"{result['experiment']}: {result['title']}  ({result['runs']} runs per setting"
-             f"{', quick variant' if result.get('quick') else ''}; ours = mean ± 95 % half-interval, [W] = thesis)"]
+    lines = [
+        f"{result['experiment']}: {result['title']}  ({result['runs']} runs per setting"
+        f"{', quick variant' if result.get('quick') else ''}; ours = mean ± 95 % half-interval, [W] = thesis)"
+    ]
     head = f"{'setting':<22}{'method':<10}{'':<5}" + "".join(f"{h:>16}" for h in COLUMN_HEADS)
     lines += [head, "-" * len(head)]
     for r in result["rows"]:
         s = r["setting"]
         label = f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
-        ours = "".join(f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>16}"
-                       for c in ERROR_COLUMNS)
+        ours = "".join(
+            f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>16}"
+            for c in ERROR_COLUMNS
+        )
         paper = "".join(f"{_fmt(c, r[c]['paper']):>16}" for c in ERROR_COLUMNS)
         lines.append(f"{label:<22}{METHOD_LABELS[r['method']]:<10}{'ours':<5}{ours}")
         lines.append(f"{'':<22}{'':<10}{'[W]':<5}{paper}")
@@ -116,16 +138,25 @@ def render_table(result: dict) -> str:
 def markdown_table(result: dict) -> str:
     """Markdown table: ``ours [lo, hi] ([W] value)`` per column."""
     head = "| setting | method | " + " | ".join(COLUMN_HEADS) + " |"
-    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per setting; "
-             "mean [95 % interval] (thesis value))", "", head, "|" + " --- |" * (2 + len(COLUMN_HEADS))]
+    lines = [
+        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per setting; "
+        "mean [95 % interval] (thesis value))",
+        "",
+        head,
+        "|" + " --- |" * (2 + len(COLUMN_HEADS)),
+    ]
     for r in result["rows"]:
         s = r["setting"]
         cells = []
         for c in ERROR_COLUMNS:
             v = r[c]
-            cells.append(f"{_fmt(c, v['mean'])} [{_fmt(c, v['ci95'][0])}, {_fmt(c, v['ci95'][1])}] ({_fmt(c, v['paper'])})")
-        lines.append(f"| {s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']} | "
-                     f"{METHOD_LABELS[r['method']]} | " + " | ".join(cells) + " |")
+            cells.append(
+                f"{_fmt(c, v['mean'])} [{_fmt(c, v['ci95'][0])}, {_fmt(c, v['ci95'][1])}] ({_fmt(c, v['paper'])})"
+            )
+        lines.append(
+            f"| {s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']} | "
+            f"{METHOD_LABELS[r['method']]} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines)
 
 
@@ -134,7 +165,9 @@ def plot_table(result: dict, path: str) -> None:
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
-    labels = [f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}" for r in rows]
+    labels = [
+        f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}" for r in rows
+    ]
     x = np.arange(len(rows))
     fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.6 * len(rows) + 3), 4.2))
     for ax, col, what in zip(axes, ("dr_mm", "dt_mm"), ("robot error dr", "tag error dt")):
@@ -161,12 +194,15 @@ def plot_table(result: dict, path: str) -> None:
 
 _S31 = {d: hf.HFSetting(density=d, reader_side=0.06, trajectory="rectangle") for d in (16.0, 100.0)}
 _S32 = {d: hf.HFSetting(density=d, reader_side=0.06, trajectory="random") for d in (16.0, 100.0)}
-_S41 = tuple(hf.HFSetting(density=4.0, reader_side=0.3, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=r)
-             for r in FIVE_RECTANGLES)
+_S41 = tuple(
+    hf.HFSetting(density=4.0, reader_side=0.3, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=r)
+    for r in FIVE_RECTANGLES
+)
 _S42 = hf.HFSetting(density=4.0, reader_side=0.3, trajectory="random", carpet=(4.0, 3.5))
 
 table_experiment(
-    "table-3.1", "FastSLAM vs PF-SLAM, 60 mm readers, rectangle driven three times ([W] Table 3.1)",
+    "table-3.1",
+    "FastSLAM vs PF-SLAM, 60 mm readers, rectangle driven three times ([W] Table 3.1)",
     [
         TableRow("16", "fastslam", [_S31[16.0]], (27.6, 24.0, 0.022, 36.6, 19.0, 28.9, 34.6)),
         TableRow("16", "pf_slam", [_S31[16.0]], (20.8, 25.8, 0.015, 33.1, 26.7, 23.1, 35.3)),
@@ -175,7 +211,8 @@ table_experiment(
     ],
 )
 table_experiment(
-    "table-3.2", "FastSLAM vs PF-SLAM, 60 mm readers, random trajectory ([W] Table 3.2)",
+    "table-3.2",
+    "FastSLAM vs PF-SLAM, 60 mm readers, random trajectory ([W] Table 3.2)",
     [
         TableRow("16", "fastslam", [_S32[16.0]], (122.0, 72.6, 0.076, 142.0, 147.0, 71.3, 163.4)),
         TableRow("16", "pf_slam", [_S32[16.0]], (10.8, 26.8, 0.006, 28.9, 9.3, 26.9, 28.5)),
@@ -184,7 +221,8 @@ table_experiment(
     ],
 )
 table_experiment(
-    "table-4.1", "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², five rectangles ([W] Table 4.1)",
+    "table-4.1",
+    "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², five rectangles ([W] Table 4.1)",
     [
         TableRow("4", "ps_slam", _S41, (25.4, 45.1, 0.006, 53.8, 50.3, 51.2, 79.0)),
         TableRow("4", "pf_slam", _S41, (41.4, 66.6, 0.003, 82.1, 66.1, 80.1, 110.5)),
@@ -193,7 +231,8 @@ table_experiment(
     notes="Each row pools the runs of the five rectangles.",
 )
 table_experiment(
-    "table-4.2", "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², random trajectory ([W] Table 4.2)",
+    "table-4.2",
+    "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², random trajectory ([W] Table 4.2)",
     [
         # [W] prints the tag distance of Table 4.2 in "cm", but the values (50.4, 82.3, 280.0) follow
         # the mm of every other column and table; we read them as mm.

@@ -85,8 +85,9 @@ from __future__ import annotations
 import functools
 import math
 import textwrap
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -184,8 +185,9 @@ class UHFSetting:
         check_nonnegative("margin", self.margin)
         lo, hi = S.SEARCH_BOX_A
         if not np.all(hi - lo > 2 * self.margin):
-            raise ValueError(f"margin {self.margin} m leaves no room for the tag in the search box "
-                             f"{lo.tolist()}–{hi.tolist()}")
+            raise ValueError(
+                f"margin {self.margin} m leaves no room for the tag in the search box {lo.tolist()}–{hi.tolist()}"
+            )
 
     @property
     def step_period(self) -> float:
@@ -235,8 +237,9 @@ def run_inputs(s: UHFSetting) -> UHFInputs:
     )
 
 
-def anchor_position(key: jax.Array, tag: jax.Array, distance: jax.Array, box_lo: jax.Array, box_hi: jax.Array,
-                    tries: int = 256) -> jax.Array:
+def anchor_position(
+    key: jax.Array, tag: jax.Array, distance: jax.Array, box_lo: jax.Array, box_hi: jax.Array, tries: int = 256
+) -> jax.Array:
     """A point at ``distance`` (m) from ``tag [3]`` in a random direction, inside the box: jittable.
 
     The rule and the draws of :func:`jaxnav.sim.uhf_reader.anchor_position` with
@@ -281,8 +284,13 @@ def _simulate_and_filter(key, inputs: UHFInputs, configs: Sequence[rt.RFIDTagCon
     """``(scene, fit, reads of the tag, [trace per config])`` of one run (keys: :func:`_keys`)."""
     _, _, _, k_sim, k_init, k_run = _keys(key)
     scene = draw_scene(key, inputs)
-    reads = S.simulate_reads(k_sim, inputs.path, jnp.stack([scene.tag, scene.anchor]),
-                             jnp.stack([scene.offset, jnp.zeros_like(scene.offset)]), multipath=inputs.multipath)
+    reads = S.simulate_reads(
+        k_sim,
+        inputs.path,
+        jnp.stack([scene.tag, scene.anchor]),
+        jnp.stack([scene.offset, jnp.zeros_like(scene.offset)]),
+        multipath=inputs.multipath,
+    )
     tag_reads = jax.tree_util.tree_map(lambda x: x[0], reads)
     anchor_reads = jax.tree_util.tree_map(lambda x: x[1], reads)
     a = S.anchor_power_scale(anchor_reads, scene.anchor)
@@ -300,7 +308,7 @@ def _error(estimate: jax.Array, tag: jax.Array, dims: int) -> jax.Array:
     return jnp.sqrt(jnp.sum(d * d, axis=-1))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def run_once(weightings: tuple[str, ...], dims: int, num_particles: int, refresh: str = "gaussian"):
     """``(key, inputs: UHFInputs) -> {field: array}`` of one seeded run (cached: one function per arguments).
 
@@ -313,14 +321,26 @@ def run_once(weightings: tuple[str, ...], dims: int, num_particles: int, refresh
     for w in weightings:
         check_choice("weighting", w, METHODS)
     check_choice("refresh", refresh, REFRESHES)
-    configs = [rt.RFIDTagConfig(num_particles=int(num_particles), dims=int(dims), weighting=w,
-                                refresh=True if refresh == "gaussian" else refresh) for w in weightings]
+    configs = [
+        rt.RFIDTagConfig(
+            num_particles=int(num_particles),
+            dims=int(dims),
+            weighting=w,
+            refresh=True if refresh == "gaussian" else refresh,
+        )
+        for w in weightings
+    ]
 
     def fn(key: jax.Array, inputs: UHFInputs) -> dict:
         scene, fit, tag_reads, traces = _simulate_and_filter(key, inputs, configs)
         out = {f"err_{w}": _error(tr.estimate, scene.tag, dims) for w, tr in zip(weightings, traces)}
-        out.update(gamma_k=fit.params.k, gamma_theta=fit.params.theta, gamma_default=fit.used_default,
-                   tag_reads=jnp.sum(tag_reads.mask, dtype=jnp.int32), anchor_reads=fit.n_valid.astype(jnp.int32))
+        out.update(
+            gamma_k=fit.params.k,
+            gamma_theta=fit.params.theta,
+            gamma_default=fit.used_default,
+            tag_reads=jnp.sum(tag_reads.mask, dtype=jnp.int32),
+            anchor_reads=fit.n_valid.astype(jnp.int32),
+        )
         return out
 
     return fn
@@ -337,7 +357,7 @@ def prior_rmse(dims: int, margin: float = MARGIN) -> float:
     return float(np.sqrt(np.sum(w**2) / 12.0))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _t975(dof: int) -> float:
     return sw.student_t_quantile(0.975, dof)
 
@@ -367,8 +387,10 @@ def rmse_summary(err: np.ndarray, final_fraction: float = FINAL_FRACTION) -> tup
     if e2.ndim != 2:
         raise ValueError(f"err must have shape [R, T], got {e2.shape}")
     m, lo, hi = _mean_ci_columns(e2)
-    curve = {"mean": np.sqrt(m).tolist(),
-             "ci95": np.stack([np.sqrt(np.maximum(lo, 0.0)), np.sqrt(hi)], axis=1).tolist()}
+    curve = {
+        "mean": np.sqrt(m).tolist(),
+        "ci95": np.stack([np.sqrt(np.maximum(lo, 0.0)), np.sqrt(hi)], axis=1).tolist(),
+    }
     fm, flo, fhi = _mean_ci_columns(_final_mse(e2, final_fraction)[:, None])
     final = {"mean": float(np.sqrt(fm[0])), "ci95": [float(np.sqrt(max(flo[0], 0.0))), float(np.sqrt(fhi[0]))]}
     return curve, final
@@ -405,19 +427,28 @@ PAPER: dict[tuple[str, int, str], tuple[float | None, str]] = {
 }
 """[A]'s final RMSE (m) per ``(multipath, dims, method)``, or None, with where it comes from."""
 
-FIG_5_3_NOTE = (f"[A] Fig. 5.3 gives no numbers: the RMSE grows with the anchor-to-tag distance, sharply beyond "
-                f"λ/2 = {WAVELENGTH / 2:.4f} m")
+FIG_5_3_NOTE = (
+    f"[A] Fig. 5.3 gives no numbers: the RMSE grows with the anchor-to-tag distance, sharply beyond "
+    f"λ/2 = {WAVELENGTH / 2:.4f} m"
+)
 
 
 def _setting_json(s: UHFSetting) -> dict:
-    return {"multipath": s.multipath, "dims": s.dims, "anchor_distance_m": round(s.anchor_distance, 6),
-            "anchor_distance_lambda": round(s.anchor_distance / WAVELENGTH, 4), "refresh": s.refresh}
+    return {
+        "multipath": s.multipath,
+        "dims": s.dims,
+        "anchor_distance_m": round(s.anchor_distance, 6),
+        "anchor_distance_lambda": round(s.anchor_distance / WAVELENGTH, 4),
+        "refresh": s.refresh,
+    }
 
 
 def _label(setting: dict) -> str:
     refresh = setting.get("refresh", "gaussian")
-    return (f"{setting['multipath']}, {setting['dims']}D, anchor {setting['anchor_distance_m']:.3g} m "
-            f"({setting['anchor_distance_lambda']:.2g} λ)" + ("" if refresh == "gaussian" else f", {refresh} refresh"))
+    return (
+        f"{setting['multipath']}, {setting['dims']}D, anchor {setting['anchor_distance_m']:.3g} m "
+        f"({setting['anchor_distance_lambda']:.2g} λ)" + ("" if refresh == "gaussian" else f", {refresh} refresh")
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -444,20 +475,29 @@ def _fmt(v: float | None, digits: int = 2) -> str:
 def render_table(result: dict) -> str:
     """Terminal table: per curve, the RMSE at 10 % and 25 % of the run, the final RMSE [95 % interval] and [A]'s."""
     t_end = result["rows"][0]["time_s"][-1] if result["rows"] else 0.0
-    lines = [f"{result['experiment']}: {result['title']}",
-             f"  ({result['runs']} runs per curve{', quick variant' if result.get('quick') else ''}; RMSE in m; final: "
-             f"last {FINAL_FRACTION:.0%} of {t_end:.1f} s, mean [95 % interval]; uniform prior: "
-             + ", ".join(f"{_fmt(v)} m in {d}D" for d, v in sorted(result["prior_rmse_m"].items())) + ")"]
-    head = (f"{'setting':<38}{'method':<10}{'@10%':>7}{'@25%':>7}{'final':>8}{'95 % interval':>16}{'median':>8}"
-            f"{'lost':>7}{'[A]':>7}  note")
+    lines = [
+        f"{result['experiment']}: {result['title']}",
+        f"  ({result['runs']} runs per curve{', quick variant' if result.get('quick') else ''}; RMSE in m; final: "
+        f"last {FINAL_FRACTION:.0%} of {t_end:.1f} s, mean [95 % interval]; uniform prior: "
+        + ", ".join(f"{_fmt(v)} m in {d}D" for d, v in sorted(result["prior_rmse_m"].items()))
+        + ")",
+    ]
+    head = (
+        f"{'setting':<38}{'method':<10}{'@10%':>7}{'@25%':>7}{'final':>8}{'95 % interval':>16}{'median':>8}"
+        f"{'lost':>7}{'[A]':>7}  note"
+    )
     lines += [head, "-" * (len(head) + 30)]
     for r in result["rows"]:
         f = r["final_rmse_m"]
         med, lost = _robust(result, r)
-        lines.append(f"{_label(r['setting']):<38}{r['method']:<10}{_fmt(_curve_at(r, 0.1)):>7}{_fmt(_curve_at(r, 0.25)):>7}"
-                     f"{_fmt(f['mean']):>8}{'[' + _fmt(f['ci95'][0]) + ', ' + _fmt(f['ci95'][1]) + ']':>16}"
-                     f"{_fmt(med, 3):>8}{lost:>7}{_fmt(f['paper']):>7}  {f['paper_note']}")
-    lines.append(f"  median: median over runs of the run's final error; lost: runs whose final error exceeds {FAILED_M} m")
+        lines.append(
+            f"{_label(r['setting']):<38}{r['method']:<10}{_fmt(_curve_at(r, 0.1)):>7}{_fmt(_curve_at(r, 0.25)):>7}"
+            f"{_fmt(f['mean']):>8}{'[' + _fmt(f['ci95'][0]) + ', ' + _fmt(f['ci95'][1]) + ']':>16}"
+            f"{_fmt(med, 3):>8}{lost:>7}{_fmt(f['paper']):>7}  {f['paper_note']}"
+        )
+    lines.append(
+        f"  median: median over runs of the run's final error; lost: runs whose final error exceeds {FAILED_M} m"
+    )
     if result.get("notes"):
         lines += ["", textwrap.fill(result["notes"], 120)]
     return "\n".join(lines)
@@ -465,19 +505,28 @@ def render_table(result: dict) -> str:
 
 def markdown_table(result: dict) -> str:
     """Markdown: one line per curve."""
-    lines = [f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per curve; RMSE in m; final = "
-             f"last {FINAL_FRACTION:.0%} of the steps, mean [95 % interval]; uniform prior "
-             + ", ".join(f"{_fmt(v)} m in {d}D" for d, v in sorted(result["prior_rmse_m"].items())) + ")",
-             "", "| setting | method | RMSE @10 % | RMSE @25 % | final RMSE | median final error | lost runs | [A] "
-             "| [A] says |", "|" + " --- |" * 9]
+    lines = [
+        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per curve; RMSE in m; final = "
+        f"last {FINAL_FRACTION:.0%} of the steps, mean [95 % interval]; uniform prior "
+        + ", ".join(f"{_fmt(v)} m in {d}D" for d, v in sorted(result["prior_rmse_m"].items()))
+        + ")",
+        "",
+        "| setting | method | RMSE @10 % | RMSE @25 % | final RMSE | median final error | lost runs | [A] | [A] says |",
+        "|" + " --- |" * 9,
+    ]
     for r in result["rows"]:
         f = r["final_rmse_m"]
         med, lost = _robust(result, r)
-        lines.append(f"| {_label(r['setting'])} | {r['method']} | {_fmt(_curve_at(r, 0.1))} | {_fmt(_curve_at(r, 0.25))} | "
-                     f"{_fmt(f['mean'], 3)} [{_fmt(f['ci95'][0], 3)}, {_fmt(f['ci95'][1], 3)}] | {_fmt(med, 3)} | "
-                     f"{lost}/{result['runs']} | {_fmt(f['paper'])} | {f['paper_note']} |")
-    lines += ["", f"Median final error: median over runs of each run's final error (RMS over the last "
-              f"{FINAL_FRACTION:.0%} of steps); lost runs: final error above {FAILED_M} m."]
+        lines.append(
+            f"| {_label(r['setting'])} | {r['method']} | {_fmt(_curve_at(r, 0.1))} | {_fmt(_curve_at(r, 0.25))} | "
+            f"{_fmt(f['mean'], 3)} [{_fmt(f['ci95'][0], 3)}, {_fmt(f['ci95'][1], 3)}] | {_fmt(med, 3)} | "
+            f"{lost}/{result['runs']} | {_fmt(f['paper'])} | {f['paper_note']} |"
+        )
+    lines += [
+        "",
+        f"Median final error: median over runs of each run's final error (RMS over the last "
+        f"{FINAL_FRACTION:.0%} of steps); lost runs: final error above {FAILED_M} m.",
+    ]
     if result.get("notes"):
         lines += ["", result["notes"]]
     return "\n".join(lines)
@@ -533,8 +582,12 @@ def plot_anchor(result: dict, path: str) -> None:
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.4))
     cmap = plt.get_cmap("viridis")
     for i, r in enumerate(rows):
-        _band(ax, r, cmap(i / max(1, len(rows) - 1)), f"{r['setting']['anchor_distance_lambda']:g} λ "
-              f"({r['setting']['anchor_distance_m']:.3f} m)")
+        _band(
+            ax,
+            r,
+            cmap(i / max(1, len(rows) - 1)),
+            f"{r['setting']['anchor_distance_lambda']:g} λ ({r['setting']['anchor_distance_m']:.3f} m)",
+        )
     ax.axhline(result["prior_rmse_m"]["3"], color="0.4", ls=":", lw=1.0, label="uniform prior")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("RMSE (m), 95 % CI")
@@ -544,7 +597,9 @@ def plot_anchor(result: dict, path: str) -> None:
     x = np.array([r["setting"]["anchor_distance_lambda"] for r in rows])
     m = np.array([r["final_rmse_m"]["mean"] for r in rows])
     ci = np.array([r["final_rmse_m"]["ci95"] for r in rows])
-    bx.errorbar(x, m, yerr=[m - ci[:, 0], ci[:, 1] - m], fmt="o-", color="tab:red", capsize=3, label="RSSI-only, final RMSE")
+    bx.errorbar(
+        x, m, yerr=[m - ci[:, 0], ci[:, 1] - m], fmt="o-", color="tab:red", capsize=3, label="RSSI-only, final RMSE"
+    )
     med = [_robust(result, r)[0] for r in rows]
     if all(v is not None for v in med):
         bx.plot(x, med, "s--", color="tab:red", mfc="none", label="RSSI-only, median final error")
@@ -578,25 +633,43 @@ def _summarize_cells(raw: dict, cells: Sequence[Cell], methods: Sequence[str], p
             err = np.asarray(vals[f"err_{w}"], np.float64)
             curve, final = rmse_summary(err)
             paper, note = paper_fn(s, w)
-            rows.append({"setting": setting, "method": w,
-                         "time_s": [round(t * s.step_period, 6) for t in range(err.shape[1])],
-                         "rmse_m": curve, "final_rmse_m": {**final, "paper": paper, "paper_note": note}})
+            rows.append(
+                {
+                    "setting": setting,
+                    "method": w,
+                    "time_s": [round(t * s.step_period, 6) for t in range(err.shape[1])],
+                    "rmse_m": curve,
+                    "final_rmse_m": {**final, "paper": paper, "paper_note": note},
+                }
+            )
         k = np.asarray(vals["gamma_k"], np.float64)
         finals = {w: np.sqrt(_final_mse(np.square(np.asarray(vals[f"err_{w}"], np.float64)))) for w in methods}
-        diagnostics.append({"setting": setting,
-                            "final_median_m": {w: float(np.median(f)) for w, f in finals.items()},
-                            "final_lost_runs": {w: int(np.sum(f > FAILED_M)) for w, f in finals.items()},
-                            "gamma_k_median": float(np.median(k)),
-                            "gamma_theta_median": float(np.median(vals["gamma_theta"])),
-                            "gamma_default_fraction": float(np.mean(vals["gamma_default"])),
-                            "tag_reads_mean": float(np.mean(vals["tag_reads"])),
-                            "anchor_reads_mean": float(np.mean(vals["anchor_reads"]))})
+        diagnostics.append(
+            {
+                "setting": setting,
+                "final_median_m": {w: float(np.median(f)) for w, f in finals.items()},
+                "final_lost_runs": {w: int(np.sum(f > FAILED_M)) for w, f in finals.items()},
+                "gamma_k_median": float(np.median(k)),
+                "gamma_theta_median": float(np.median(vals["gamma_theta"])),
+                "gamma_default_fraction": float(np.mean(vals["gamma_default"])),
+                "tag_reads_mean": float(np.mean(vals["tag_reads"])),
+                "anchor_reads_mean": float(np.mean(vals["anchor_reads"])),
+            }
+        )
     return {"rows": rows, "diagnostics": diagnostics}
 
 
-def _experiment(name: str, title: str, settings: Sequence[UHFSetting], methods: Sequence[str], paper_fn,
-                plot, notes: str, quick_weightings: Sequence[str] | None = None,
-                quick_settings: Sequence[int] | None = None) -> Experiment:
+def _experiment(
+    name: str,
+    title: str,
+    settings: Sequence[UHFSetting],
+    methods: Sequence[str],
+    paper_fn,
+    plot,
+    notes: str,
+    quick_weightings: Sequence[str] | None = None,
+    quick_settings: Sequence[int] | None = None,
+) -> Experiment:
     """Build and register an experiment: one cell per setting, one row per (setting, method).
 
     ``quick_weightings``: the weightings the quick variant's cells compute (a superset of
@@ -615,15 +688,22 @@ def _experiment(name: str, title: str, settings: Sequence[UHFSetting], methods: 
             fn = run_once(weightings, s.dims, s.num_particles, s.refresh)
             # [A]'s Gaussian cells keep the ids of fig-5.5/5.6 (so the same seeded runs): common random numbers
             cid = f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}" + (
-                "" if s.refresh == "gaussian" else f"|refresh={s.refresh}")
+                "" if s.refresh == "gaussian" else f"|refresh={s.refresh}"
+            )
             out.append(Cell(cid, cid, "+".join(methods), s, fn, (run_inputs(s),)))
         return out
 
     def summarize(raw: dict, cell_list: list[Cell], quick: bool) -> dict:
         out = _summarize_cells(raw, cell_list, methods, paper_fn)
         step = cell_list[0].setting.step_period
-        return {**out, "prior_rmse_m": {"2": prior_rmse(2), "3": prior_rmse(3)}, "step_period_s": step,
-                "final_fraction": FINAL_FRACTION, "wavelength_m": WAVELENGTH, "notes": notes}
+        return {
+            **out,
+            "prior_rmse_m": {"2": prior_rmse(2), "3": prior_rmse(3)},
+            "step_period_s": step,
+            "final_fraction": FINAL_FRACTION,
+            "wavelength_m": WAVELENGTH,
+            "notes": notes,
+        }
 
     return register(Experiment(name, title, cells, summarize, render_table, markdown_table, plot, notes))
 
@@ -640,37 +720,49 @@ _COMMON_NOTES = (
 )
 
 _experiment(
-    "fig-5.3", "RSSI-only tag localization against the anchor-to-tag distance, strong multipath, 3D ([A] Fig. 5.3)",
+    "fig-5.3",
+    "RSSI-only tag localization against the anchor-to-tag distance, strong multipath, 3D ([A] Fig. 5.3)",
     [UHFSetting(multipath="strong", dims=3, anchor_distance=d * WAVELENGTH) for d in ANCHOR_LAMBDAS],
-    ("rssi",), lambda s, w: (None, FIG_5_3_NOTE), plot_anchor,
+    ("rssi",),
+    lambda s, w: (None, FIG_5_3_NOTE),
+    plot_anchor,
     "Anchor at 0.25, 0.5, 1, 2, 4 lambda (lambda = 0.173 m, [A] §5.2) in a random direction from the tag, inside the "
     "box. " + _COMMON_NOTES,
-    quick_weightings=METHODS, quick_settings=(1, 4),
+    quick_weightings=METHODS,
+    quick_settings=(1, 4),
 )
 
 _experiment(
-    "fig-5.5", "Tag localization in 3D (2 x 3 x 2 m): RSSI, phase, combined, light and strong multipath ([A] Fig. 5.5)",
+    "fig-5.5",
+    "Tag localization in 3D (2 x 3 x 2 m): RSSI, phase, combined, light and strong multipath ([A] Fig. 5.5)",
     [UHFSetting(multipath=m, dims=3) for m in MULTIPATHS],
-    METHODS, lambda s, w: PAPER[(s.multipath, s.dims, w)], plot_curves,
+    METHODS,
+    lambda s, w: PAPER[(s.multipath, s.dims, w)],
+    plot_curves,
     f"Anchor {CLOSE_ANCHOR} m from the tag. " + _COMMON_NOTES,
 )
 
 _experiment(
-    "fig-5.6", "Tag localization in 2D (2 x 3 m, known height): RSSI, phase, combined, light and strong multipath "
-    "([A] Fig. 5.6)",
+    "fig-5.6",
+    "Tag localization in 2D (2 x 3 m, known height): RSSI, phase, combined, light and strong multipath ([A] Fig. 5.6)",
     [UHFSetting(multipath=m, dims=2) for m in MULTIPATHS],
-    METHODS, lambda s, w: PAPER[(s.multipath, s.dims, w)], plot_curves,
-    f"Anchor {CLOSE_ANCHOR} m from the tag; the filter knows the tag's height, the error is over x, y. " + _COMMON_NOTES,
+    METHODS,
+    lambda s, w: PAPER[(s.multipath, s.dims, w)],
+    plot_curves,
+    f"Anchor {CLOSE_ANCHOR} m from the tag; the filter knows the tag's height, the error is over x, y. "
+    + _COMMON_NOTES,
 )
 
 _experiment(
-    "uhf-refresh", "Ours, not [A]'s: Alg. 6 combined in 3D with [A]'s Gaussian refresh against a kernel (regularised) "
+    "uhf-refresh",
+    "Ours, not [A]'s: Alg. 6 combined in 3D with [A]'s Gaussian refresh against a kernel (regularised) "
     "refresh, light and strong multipath",
     [UHFSetting(multipath=m, dims=3, refresh=r) for m in MULTIPATHS for r in REFRESHES],
-    ("combined",), lambda s, w: PAPER[(s.multipath, s.dims, w)], plot_curves,
+    ("combined",),
+    lambda s, w: PAPER[(s.multipath, s.dims, w)],
+    plot_curves,
     f"Anchor {CLOSE_ANCHOR} m from the tag. The Gaussian cells are fig-5.5's combined curves (same cell ids, same "
     "seeded runs). The kernel refresh moves every resampled particle by h L eps (L L^T the set's covariance, h = "
     "Silverman's bandwidth, 0.37 for 2000 particles in 4 dimensions: jaxnav.core.resampling.kernel_refresh) instead "
-    "of redrawing the whole set from one Gaussian, so the early multimodal posterior keeps its modes. "
-    + _COMMON_NOTES,
+    "of redrawing the whole set from one Gaussian, so the early multimodal posterior keeps its modes. " + _COMMON_NOTES,
 )

@@ -38,8 +38,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -133,7 +134,9 @@ def _xyz(xy: np.ndarray, height: float) -> jax.Array:
 
 def anchor_gamma(reads: U.UHFReads, anchor_xy: np.ndarray, setting: RealSetting) -> U.GammaFit:
     """(k, θ) by [A] §4.3.1's anchor fit: the anchor's reads against ``a`` of the model at its known position."""
-    a = U.power_scale(reads.reader, _xyz(anchor_xy, setting.antenna_height), channel_params(), wavelength=reads.wavelength)
+    a = U.power_scale(
+        reads.reader, _xyz(anchor_xy, setting.antenna_height), channel_params(), wavelength=reads.wavelength
+    )
     return U.estimate_gamma(reads.rssi.ravel(), a.ravel(), reads.mask.ravel())
 
 
@@ -148,8 +151,12 @@ def _params(setting: RealSetting, gamma: U.GammaParams) -> rfid_tag.RFIDTagParam
     chan = channel_params()
     h = setting.antenna_height
     return rfid_tag.default_params(
-        box_lo=(*BOX_LO, h - 0.5), box_hi=(*BOX_HI, h + 0.5), channel=chan, gamma=gamma,
-        phase_sigma=setting.phase_sigma_fraction * float(chan.wavelength), tag_height=h,
+        box_lo=(*BOX_LO, h - 0.5),
+        box_hi=(*BOX_HI, h + 0.5),
+        channel=chan,
+        gamma=gamma,
+        phase_sigma=setting.phase_sigma_fraction * float(chan.wavelength),
+        tag_height=h,
     )
 
 
@@ -171,8 +178,9 @@ def localize(
         check_choice("weighting", w, rfid_tag.WEIGHTINGS)
     check_positive_int("seeds", seeds)
     exp = adarf.load_experiment(experiment, root)
-    reads = [adarf.to_uhf_reads(exp, g, setting.reads_per_channel, antenna_height=setting.antenna_height)
-             for g in range(3)]
+    reads = [
+        adarf.to_uhf_reads(exp, g, setting.reads_per_channel, antenna_height=setting.antenna_height) for g in range(3)
+    ]
     out = []
     for g in range(3):
         anchor = ANCHOR_OF[g]
@@ -187,15 +195,27 @@ def localize(
                 est.append(np.asarray(trace.estimate[:, :2], np.float64))
             est = np.stack(est)
             err = np.linalg.norm(est - exp.tags_xy[g], axis=-1)
-            out.append(TagResult(experiment, g, w, exp.tags_xy[g].copy(), est, err, err[:, -1],
-                                 U.GammaParams(float(fit.params.k), float(fit.params.theta))))
+            out.append(
+                TagResult(
+                    experiment,
+                    g,
+                    w,
+                    exp.tags_xy[g].copy(),
+                    est,
+                    err,
+                    err[:, -1],
+                    U.GammaParams(float(fit.params.k), float(fit.params.theta)),
+                )
+            )
     return out
 
 
 def format_results(results: Sequence[TagResult]) -> str:
     """A table: final error (m, mean and range over seeds) and its x / y parts per tag and weighting."""
-    lines = [f"{'experiment':<16}{'tag':>4}{'weighting':>10}{'error m':>9}{'(min-max)':>14}{'dx m':>8}{'dy m':>8}"
-             f"{'prior m':>9}{'anchor k':>10}"]
+    lines = [
+        f"{'experiment':<16}{'tag':>4}{'weighting':>10}{'error m':>9}{'(min-max)':>14}{'dx m':>8}{'dy m':>8}"
+        f"{'prior m':>9}{'anchor k':>10}"
+    ]
     for r in results:
         d = r.estimates[:, -1] - r.truth
         lines.append(
@@ -224,13 +244,23 @@ def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray
         ax.plot(e[:, 0], e[:, 1], "o", color=colors[r.weighting], mfc="none", label=lab)
         for p in e:  # which tag each estimate belongs to
             ax.plot([p[0], r.truth[0]], [p[1], r.truth[1]], "-", color=colors[r.weighting], lw=0.6, alpha=0.6)
-        bx.plot(np.arange(1, adarf.NUM_POINTS + 1), r.errors.mean(0), color=colors[r.weighting], alpha=0.7,
-                label=None if f"err-{r.weighting}" in seen else r.weighting)
+        bx.plot(
+            np.arange(1, adarf.NUM_POINTS + 1),
+            r.errors.mean(0),
+            color=colors[r.weighting],
+            alpha=0.7,
+            label=None if f"err-{r.weighting}" in seen else r.weighting,
+        )
         seen.add(f"err-{r.weighting}")
     ax.add_patch(plt.Rectangle(BOX_LO, BOX_HI[0] - BOX_LO[0], BOX_HI[1] - BOX_LO[1], fill=False, ls="--", color="grey"))
     ax.set(xlabel="x (m)", ylabel="y (m)", title=f"{results[0].experiment}: final estimates", aspect="equal")
     ax.legend(fontsize=8, loc="upper right")
-    bx.set(xlabel="aperture points read", ylabel="error (m)", title="error after each point (mean over seeds)", yscale="log")
+    bx.set(
+        xlabel="aperture points read",
+        ylabel="error (m)",
+        title="error after each point (mean over seeds)",
+        yscale="log",
+    )
     bx.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

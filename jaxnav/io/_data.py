@@ -10,8 +10,8 @@ repository root.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 ENV_VAR = "JAXNAV_DATA"
 """Environment variable naming the data folder (the parent of each dataset's folder)."""

@@ -95,7 +95,11 @@ import numpy as np
 
 from jaxnav.core.validation import check_finite, check_positive_int, check_shape
 from jaxnav.io._data import ENV_VAR, find_dataset
-from jaxnav.metrics import TrajectoryError, position_errors, trajectory_rmse  # re-exported: scoring lives in jaxnav.metrics
+from jaxnav.metrics import (
+    TrajectoryError,
+    position_errors,
+    trajectory_rmse,
+)  # re-exported: scoring lives in jaxnav.metrics
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
 
@@ -363,8 +367,7 @@ def load_robot(robot: int, root: str | os.PathLike | None = None) -> MRCLAMRobot
     missing = [str(p) for p in _robot_files(folder, int(robot)) if not p.is_file()]
     if missing:
         raise FileNotFoundError(
-            f"robot {robot}: {', '.join(missing)} not found; this copy holds robots "
-            f"{list(available_robots(folder))}"
+            f"robot {robot}: {', '.join(missing)} not found; this copy holds robots {list(available_robots(folder))}"
         )
     return _load_robot(str(folder), int(robot))
 

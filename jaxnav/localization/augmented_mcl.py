@@ -80,8 +80,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.batch import scan_filter
 from jaxnav.core import resampling, weights
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
@@ -214,9 +214,7 @@ def _validate_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> 
     if is_concrete(params.bounds):
         x0, x1, y0, y1 = (float(b) for b in np.asarray(params.bounds))
         if not (x1 > x0 and y1 > y0):
-            raise ValueError(
-                f"params.bounds must satisfy x_min < x_max and y_min < y_max, got {(x0, x1, y0, y1)}"
-            )
+            raise ValueError(f"params.bounds must satisfy x_min < x_max and y_min < y_max, got {(x0, x1, y0, y1)}")
 
 
 def _validate_state(config: AugmentedMCLConfig, state: AugmentedMCLState) -> None:

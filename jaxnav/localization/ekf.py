@@ -29,9 +29,10 @@ Interface (deterministic: no key)::
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -40,9 +41,9 @@ import numpy as np
 from jaxnav.core import kalman
 from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
+from jaxnav.localization.mcl import validate_model_params
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
-from jaxnav.localization.mcl import validate_model_params
 
 __all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "step", "run"]
 
@@ -196,7 +197,13 @@ def kalman_step(
     res = update(prior.mean, prior.cov, obs.z, lm.predict, r, positions, valid=valid)
     num_gated = jnp.sum(valid & ~res.accepted).astype(jnp.int32)
     info = KalmanInfo(
-        res.mean, res.cov, res.nis, res.accepted, res.log_likelihood, num_ignored, num_gated,
+        res.mean,
+        res.cov,
+        res.nis,
+        res.accepted,
+        res.log_likelihood,
+        num_ignored,
+        num_gated,
         failed_predict | res.cholesky_failed,
     )
     return KalmanState(res.mean, res.cov), info

@@ -115,8 +115,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import erfc, logsumexp
 
-from jaxnav.core.batch import scan_filter
 from jaxnav.core import weights
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -125,9 +125,9 @@ from jaxnav.core.validation import (
     check_shape,
     is_concrete,
 )
+from jaxnav.localization.mcl import validate_model_params
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
-from jaxnav.localization.mcl import validate_model_params
 
 __all__ = [
     "GridConfig",
@@ -179,7 +179,9 @@ class GridConfig:
         except (TypeError, ValueError):
             raise ValueError(f"bounds must be four numbers (x_min, x_max, y_min, y_max), got {self.bounds!r}") from None
         if len(b) != 4 or not all(math.isfinite(v) for v in b) or not (b[0] < b[1] and b[2] < b[3]):
-            raise ValueError(f"bounds must be four finite numbers with x_min < x_max and y_min < y_max, got {self.bounds!r}")
+            raise ValueError(
+                f"bounds must be four finite numbers with x_min < x_max and y_min < y_max, got {self.bounds!r}"
+            )
         object.__setattr__(self, "bounds", b)
         check_positive_int("nx", self.nx)
         check_positive_int("ny", self.ny)

@@ -299,10 +299,12 @@ _DEFAULT_MOTION = {
     # odometry error of jaxnav.sim.ir_world (0.03 white + 4 % scale at 0.2 m/s) with margin
     "omni_body": lambda: OmniNoise(jnp.asarray([0.05, 0.05, 0.05], jnp.float32)),
     "omni": lambda: OmniNoise(jnp.asarray([0.05, 0.05, 0.05], jnp.float32)),
-    "velocity": lambda: VelocityNoise(jnp.asarray([0.05, 0.0, 0.0, 0.05, 0.0, 0.0], jnp.float32),
-                                      jnp.asarray([0.005, 0.005, 0.005], jnp.float32)),
-    "odometry": lambda: OdometryNoise(jnp.asarray([0.05, 0.01, 0.05, 0.01], jnp.float32),
-                                      jnp.asarray([0.005, 0.005, 0.005], jnp.float32)),
+    "velocity": lambda: VelocityNoise(
+        jnp.asarray([0.05, 0.0, 0.0, 0.05, 0.0, 0.0], jnp.float32), jnp.asarray([0.005, 0.005, 0.005], jnp.float32)
+    ),
+    "odometry": lambda: OdometryNoise(
+        jnp.asarray([0.05, 0.01, 0.05, 0.01], jnp.float32), jnp.asarray([0.005, 0.005, 0.005], jnp.float32)
+    ),
 }
 
 
@@ -587,7 +589,9 @@ _step_jit = jax.jit(_step, static_argnames=("config",))
 
 def _as_detection(det: IRDetection) -> IRDetection:
     return IRDetection(
-        jnp.asarray(det.mask, jnp.int32), jnp.asarray(det.valid, bool), jnp.asarray(det.voltage, jnp.float32),
+        jnp.asarray(det.mask, jnp.int32),
+        jnp.asarray(det.valid, bool),
+        jnp.asarray(det.voltage, jnp.float32),
         jnp.asarray(det.amplitude, jnp.float32),
     )
 

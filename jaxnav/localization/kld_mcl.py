@@ -96,8 +96,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
-from jaxnav.core.batch import scan_filter
 from jaxnav.core import resampling, weights
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.localization.mcl import MCLParams
@@ -151,9 +151,7 @@ class KLDMCLConfig:
         check_positive_int("max_particles", self.max_particles)
         check_positive_int("min_particles", self.min_particles)
         if self.min_particles > self.max_particles:
-            raise ValueError(
-                f"min_particles must be <= max_particles, got {self.min_particles} > {self.max_particles}"
-            )
+            raise ValueError(f"min_particles must be <= max_particles, got {self.min_particles} > {self.max_particles}")
         eps = _real("epsilon", self.epsilon)
         if not (eps > 0.0 and math.isfinite(eps)):
             raise ValueError(f"epsilon must be finite and > 0, got {self.epsilon!r}")
@@ -350,7 +348,9 @@ def _step(
 
     # Inactive slots are never read: zero poses in, -inf weight.
     particles_in = jnp.where(active[:, None], state.particles, jnp.zeros_like(state.particles))
-    log_w_in = jnp.where(active, weights.normalize(jnp.where(active, state.log_weights, -jnp.inf)).log_weights, -jnp.inf)
+    log_w_in = jnp.where(
+        active, weights.normalize(jnp.where(active, state.log_weights, -jnp.inf)).log_weights, -jnp.inf
+    )
     w = mcl.move_and_weight(k_move, particles_in, log_w_in, config.motion_model, params, control, obs)
     # normalize() resets a degenerate set to uniform over all N_max slots: re-mask it.
     uniform_active = jnp.where(active, -jnp.log(n_prev.astype(dtype)), -jnp.inf)

@@ -44,15 +44,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.batch import scan_filter
 from jaxnav.core import resampling, weights
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
     check_fraction,
+    check_nonnegative,
     check_positive_int,
     check_shape,
-    check_nonnegative,
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
@@ -218,7 +218,9 @@ def init(
     return MCLState(particles, _uniform(n, initial_pose.dtype))
 
 
-def init_uniform(key: jax.Array, config: MCLConfig, params: MCLParams, bounds: tuple[float, float, float, float]) -> MCLState:
+def init_uniform(
+    key: jax.Array, config: MCLConfig, params: MCLParams, bounds: tuple[float, float, float, float]
+) -> MCLState:
     """Global localization: positions uniform in ``bounds = (x_min, x_max, y_min, y_max)`` (m), θ uniform."""
     _validate_params(config, params)
     x0, x1, y0, y1 = (float(b) for b in bounds)

@@ -269,14 +269,28 @@ def _step(key, state, config, params, control, reads):
     else:
         dxy = jnp.broadcast_to(dxy, (m, 2))
     noise = jax.random.normal(k_move, (m, 4), p.dtype) * params.odometry_sd
-    moved = jnp.concatenate([p[:, :2] + dxy + noise[:, :2], p[:, 2:3] + control[2] + noise[:, 2:3],
-                             weights.wrap_angle(p[:, 3:4] + control[3] + noise[:, 3:4]),
-                             weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))],
-                            axis=-1)
+    moved = jnp.concatenate(
+        [
+            p[:, :2] + dxy + noise[:, :2],
+            p[:, 2:3] + control[2] + noise[:, 2:3],
+            weights.wrap_angle(p[:, 3:4] + control[3] + noise[:, 3:4]),
+            weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype)),
+        ],
+        axis=-1,
+    )
     ll = U.read_log_likelihood(
-        moved[:, None, :4], params.anchors[None, :, :], moved[:, 4:], reads.rssi[None, :], reads.phase[None, :],
-        reads.wavelength[None, :], reads.mask[None, :], params.channel, params.gamma, params.phase_sigma,
-        use_rssi=config.weighting in ("combined", "rssi"), use_phase=config.weighting in ("combined", "phase"),
+        moved[:, None, :4],
+        params.anchors[None, :, :],
+        moved[:, 4:],
+        reads.rssi[None, :],
+        reads.phase[None, :],
+        reads.wavelength[None, :],
+        reads.mask[None, :],
+        params.channel,
+        params.gamma,
+        params.phase_sigma,
+        use_rssi=config.weighting in ("combined", "rssi"),
+        use_phase=config.weighting in ("combined", "phase"),
         softness=config.antenna_softness,
     )
     norm = weights.normalize(state.log_weights + ll)
@@ -285,8 +299,14 @@ def _step(key, state, config, params, control, reads):
     any_read = jnp.any(reads.mask)
     threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
     res = resampling.conditional_resample(k_res, moved, norm.log_weights, threshold=threshold, normalized=True)
-    info = RFIDAnchorInfo(estimate, weights.step_ess(probs, norm.degenerate), res.resampled,
-                          jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate, jnp.sum(reads.mask, dtype=jnp.int32))
+    info = RFIDAnchorInfo(
+        estimate,
+        weights.step_ess(probs, norm.degenerate),
+        res.resampled,
+        jnp.where(any_read, norm.log_norm, 0.0),
+        norm.degenerate,
+        jnp.sum(reads.mask, dtype=jnp.int32),
+    )
     return RFIDAnchorState(res.particles, res.log_weights), info
 
 
@@ -321,7 +341,9 @@ def _check(config, params, state, controls, reads, lead: int):
     shape = np.shape(controls)[:lead] + (g,)
     for name in AnchorReads._fields:
         if np.shape(getattr(reads, name)) != shape:
-            raise ValueError(f"reads.{name} must have shape {shape} (one slot per anchor), got {np.shape(getattr(reads, name))}")
+            raise ValueError(
+                f"reads.{name} must have shape {shape} (one slot per anchor), got {np.shape(getattr(reads, name))}"
+            )
     if is_concrete(reads):
         mask = np.asarray(reads.mask, bool)
         for name in ("rssi", "phase", "wavelength"):
@@ -333,15 +355,22 @@ def _check(config, params, state, controls, reads, lead: int):
             check_positive("reads.wavelength", np.asarray(reads.wavelength)[mask])
 
 
-def step(key, state: RFIDAnchorState, config: RFIDAnchorConfig, params: RFIDAnchorParams, control: Any,
-         reads: AnchorReads) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
+def step(
+    key, state: RFIDAnchorState, config: RFIDAnchorConfig, params: RFIDAnchorParams, control: Any, reads: AnchorReads
+) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
     """One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors read."""
     _check(config, params, state, control, reads, 0)
     return _step_jit(key, state, config, params, jnp.asarray(control, jnp.float32), _as_reads(reads))
 
 
-def run(key, config: RFIDAnchorConfig, params: RFIDAnchorParams, controls: Any, reads: AnchorReads,
-        initial_state: RFIDAnchorState) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
+def run(
+    key,
+    config: RFIDAnchorConfig,
+    params: RFIDAnchorParams,
+    controls: Any,
+    reads: AnchorReads,
+    initial_state: RFIDAnchorState,
+) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
     """[A] Alg. 8 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
 
     ``controls [T, 4]``; ``reads`` an :class:`AnchorReads` of ``[T, G]``.

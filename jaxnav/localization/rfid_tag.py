@@ -69,7 +69,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import resampling, weights
-from jaxnav.core.validation import check_choice, check_finite, check_fraction, check_positive, check_positive_int, check_shape
+from jaxnav.core.validation import (
+    check_choice,
+    check_finite,
+    check_fraction,
+    check_positive,
+    check_positive_int,
+    check_shape,
+)
 from jaxnav.models import uhf_rfid as U
 
 __all__ = [
@@ -221,8 +228,9 @@ def _validate_params(params: RFIDTagParams) -> None:
     except jax.errors.TracerArrayConversionError:
         return
     if not np.all(hi > lo):
-        raise ValueError(f"the search box must have a positive volume: box_lo {lo.tolist()} < box_hi {hi.tolist()} "
-                         "on every axis")
+        raise ValueError(
+            f"the search box must have a positive volume: box_lo {lo.tolist()} < box_hi {hi.tolist()} on every axis"
+        )
     if lo[2] < 0:
         raise ValueError(f"the search box must lie above the ground z = 0 (box_lo z = {lo[2]:g})")
 
@@ -257,9 +265,19 @@ def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax
     total = jnp.zeros(particles.shape[:1], particles.dtype)
     for j in range(reads.mask.shape[-1]):
         total = total + U.read_log_terms(
-            reads.reader[j], xyz, offset, reads.rssi[j], reads.phase[j], reads.wavelength[j], reads.mask[j],
-            params.channel, params.gamma, params.phase_sigma, use_rssi=config.weighting in ("combined", "rssi"),
-            use_phase=config.weighting in ("combined", "phase"), softness=config.antenna_softness,
+            reads.reader[j],
+            xyz,
+            offset,
+            reads.rssi[j],
+            reads.phase[j],
+            reads.wavelength[j],
+            reads.mask[j],
+            params.channel,
+            params.gamma,
+            params.phase_sigma,
+            use_rssi=config.weighting in ("combined", "rssi"),
+            use_phase=config.weighting in ("combined", "phase"),
+            softness=config.antenna_softness,
         )
     return total
 
@@ -280,8 +298,14 @@ def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, re
     any_read = jnp.any(reads.mask)
     # the rule of resampling.conditional_resample: ESS < threshold·M of the weights carried on, never without a read
     resample = any_read & (weights.ess_from_probabilities(probs) < config.ess_threshold * config.num_particles)
-    info = RFIDTagInfo(estimate, weights.step_ess(probs, norm.degenerate), resample, jnp.where(any_read, norm.log_norm, 0.0), norm.degenerate,
-                       jnp.sum(reads.mask, dtype=jnp.int32))
+    info = RFIDTagInfo(
+        estimate,
+        weights.step_ess(probs, norm.degenerate),
+        resample,
+        jnp.where(any_read, norm.log_norm, 0.0),
+        norm.degenerate,
+        jnp.sum(reads.mask, dtype=jnp.int32),
+    )
     return _Weighed(norm.log_weights, probs, info)
 
 
@@ -301,8 +325,14 @@ def _resample(key, particles, w: _Weighed, config: RFIDTagConfig, params: RFIDTa
         log_weights = jnp.full_like(w.log_weights, -math.log(config.num_particles))
     else:
         res = resampling.conditional_resample(
-            key, particles, w.log_weights, threshold=1.0, scheme="systematic",
-            refresh=config.refresh, angle_dims=(_OFFSET,), normalized=True,
+            key,
+            particles,
+            w.log_weights,
+            threshold=1.0,
+            scheme="systematic",
+            refresh=config.refresh,
+            angle_dims=(_OFFSET,),
+            normalized=True,
         )
         new, log_weights = res.particles, res.log_weights
     xyz = jnp.clip(new[:, :3], params.box_lo, params.box_hi)
@@ -314,8 +344,10 @@ def _resample(key, particles, w: _Weighed, config: RFIDTagConfig, params: RFIDTa
 def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
     w = _weigh(state, config, params, reads)
     particles, log_weights = jax.lax.cond(
-        w.info.resampled, lambda: _resample(key, state.particles, w, config, params),
-        lambda: (state.particles, w.log_weights))
+        w.info.resampled,
+        lambda: _resample(key, state.particles, w, config, params),
+        lambda: (state.particles, w.log_weights),
+    )
     return RFIDTagState(particles, log_weights), w.info
 
 
@@ -344,8 +376,9 @@ def _check(config, params, state, reads, lead: int):
         raise ValueError(f"reads must have shape [{axes}], got mask shape {np.shape(reads.mask)}")
 
 
-def step(key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams,
-         reads: U.UHFReads) -> tuple[RFIDTagState, RFIDTagInfo]:
+def step(
+    key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads
+) -> tuple[RFIDTagState, RFIDTagInfo]:
     """One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (mask shape ``[J]``).
 
     Jitted (``config`` static); inputs are validated on the host first.
@@ -365,8 +398,9 @@ def _run(key, config, params, reads, state):
 _run_jit = jax.jit(_run, static_argnames=("config",))
 
 
-def run(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads,
-        initial_state: RFIDTagState) -> tuple[RFIDTagState, RFIDTagInfo]:
+def run(
+    key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads, initial_state: RFIDTagState
+) -> tuple[RFIDTagState, RFIDTagInfo]:
     """[A] Alg. 6 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
 
     Args:
@@ -404,21 +438,30 @@ def _run_tags_jit(key, config, params, reads, states):
             # compute every tag's branch)
             def one_tag(args):
                 k, particles, wg = args
-                return jax.lax.cond(wg.info.resampled, lambda: _resample(k, particles, wg, config, params),
-                                    lambda: (particles, wg.log_weights))
+                return jax.lax.cond(
+                    wg.info.resampled,
+                    lambda: _resample(k, particles, wg, config, params),
+                    lambda: (particles, wg.log_weights),
+                )
 
             return jax.lax.map(one_tag, (keys, carry.particles, w))
 
-        particles, log_weights = jax.lax.cond(jnp.any(w.info.resampled), resample_some,
-                                              lambda: (carry.particles, w.log_weights))
+        particles, log_weights = jax.lax.cond(
+            jnp.any(w.info.resampled), resample_some, lambda: (carry.particles, w.log_weights)
+        )
         return RFIDTagState(particles, log_weights), w.info
 
     final, trace = jax.lax.scan(body, states, (jnp.arange(reads_t.mask.shape[0]), reads_t))
     return final, jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, 0, 1), trace)
 
 
-def run_tags(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads,
-             initial_states: RFIDTagState | None = None) -> tuple[RFIDTagState, RFIDTagInfo]:
+def run_tags(
+    key: jax.Array,
+    config: RFIDTagConfig,
+    params: RFIDTagParams,
+    reads: U.UHFReads,
+    initial_states: RFIDTagState | None = None,
+) -> tuple[RFIDTagState, RFIDTagInfo]:
     """:func:`run` for ``G`` tags at once (one scan, ``vmap`` over tags, no Python loop); reads have mask shape ``[G, T, J]``.
 
     The resampling runs tag by tag, only for the tags that resample (:func:`_run_tags_jit`),

@@ -117,4 +117,3 @@ def run(
     ekf.validate_state(initial_state)
     ekf.validate_inputs(config, controls, observations, time_axis=True)
     return _run_jit(config, params, controls, observations, initial_state)
-

@@ -155,7 +155,9 @@ def reader_params(side: float = 0.06, offsets=None, beta: float = DEFAULT_BETA) 
 def validate_params(params: HFReaderParams, argument: str = "params.sensor") -> None:
     """Host-side check: ``offsets [B, 2]`` finite, ``half_width > 0``, ``log_beta ≤ 0``."""
     if not isinstance(params, HFReaderParams):
-        raise ValueError(f"{argument} must be an HFReaderParams (see hf_rfid.reader_params), got {type(params).__name__}")
+        raise ValueError(
+            f"{argument} must be an HFReaderParams (see hf_rfid.reader_params), got {type(params).__name__}"
+        )
     check_shape(f"{argument}.offsets", params.offsets, (None, 2))
     if np.shape(params.offsets)[0] < 1:
         raise ValueError(f"{argument}.offsets must hold at least one reader")
@@ -169,7 +171,9 @@ def validate_params(params: HFReaderParams, argument: str = "params.sensor") -> 
         raise ValueError(f"{argument}.log_beta must be ≤ 0 (β ≤ 1), got {float(lb)}")
 
 
-def validate_detections(det: TagDetections, time_axis: bool, num_readers: int | None = None, name: str = "observations") -> None:
+def validate_detections(
+    det: TagDetections, time_axis: bool, num_readers: int | None = None, name: str = "observations"
+) -> None:
     """Host-side check of a :class:`TagDetections` (shapes; reader indices when concrete)."""
     for field in ("ids", "readers", "mask"):
         if not hasattr(det, field):
@@ -185,7 +189,9 @@ def validate_detections(det: TagDetections, time_axis: bool, num_readers: int | 
     if num_readers is not None and not isinstance(det.readers, jax.core.Tracer):
         r = np.asarray(det.readers)[np.asarray(det.mask, bool)]
         if r.size and (r.min() < 0 or r.max() >= num_readers):
-            raise ValueError(f"{name}.readers must index the {num_readers} readers, got values in [{r.min()}, {r.max()}]")
+            raise ValueError(
+                f"{name}.readers must index the {num_readers} readers, got values in [{r.min()}, {r.max()}]"
+            )
 
 
 # ---------------------------------------------------------------------------
@@ -232,21 +238,27 @@ def log_detection_likelihood(e: jax.Array, half_width: jax.Array, log_beta: jax.
     return _eq37(e[..., 0], e[..., 1], half_width, log_beta)
 
 
-def tag_log_likelihood(tag_particles: jax.Array, pose: jax.Array, reader_offset: jax.Array, params: HFReaderParams) -> jax.Array:
+def tag_log_likelihood(
+    tag_particles: jax.Array, pose: jax.Array, reader_offset: jax.Array, params: HFReaderParams
+) -> jax.Array:
     """``[J]`` log-likelihood of tag particles ``[J, 2]`` (world, m) detected by the reader at
     ``reader_offset [2]`` of a robot at ``pose [3]`` ([W] Alg. 1 line 10)."""
     ex, ey = _residual(pose, tag_particles, reader_offset)
     return _eq37(ex, ey, params.half_width, params.log_beta)
 
 
-def robot_log_likelihood(poses: jax.Array, tag: jax.Array, reader_offset: jax.Array, params: HFReaderParams) -> jax.Array:
+def robot_log_likelihood(
+    poses: jax.Array, tag: jax.Array, reader_offset: jax.Array, params: HFReaderParams
+) -> jax.Array:
     """``[I]`` log-likelihood of robot particles ``[I, 3]`` for a detection of the tag estimated
     at ``tag [2]`` (world, m) by the reader at ``reader_offset [2]`` ([W] Alg. 1 line 18)."""
     ex, ey = _residual(poses, tag, reader_offset)
     return _eq37(ex, ey, params.half_width, params.log_beta)
 
 
-def sample_in_footprint(key: jax.Array, pose: jax.Array, reader_offset: jax.Array, half_width: jax.Array, num: int) -> jax.Array:
+def sample_in_footprint(
+    key: jax.Array, pose: jax.Array, reader_offset: jax.Array, half_width: jax.Array, num: int
+) -> jax.Array:
     """``[num, 2]`` world points uniform over the footprint of the reader at ``reader_offset``
     of a robot at ``pose`` ([W] Alg. 1 line 7: a new tag's particles)."""
     u = jax.random.uniform(key, (num, 2), pose.dtype, -1.0, 1.0) * half_width

@@ -107,7 +107,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any, Iterable, NamedTuple, Sequence
+from collections.abc import Iterable, Sequence
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -513,7 +514,9 @@ def code_conflicts(layout: EmitterLayout, radius: float = CONFLICT_RADIUS) -> li
     allowed = 0 if k <= 2 else 1
     nbrs = _neighbours(pos, radius)
     return [
-        (i, j) for i in range(len(nbrs)) for j in nbrs[i]
+        (i, j)
+        for i in range(len(nbrs))
+        for j in nbrs[i]
         if i < j and bin(int(masks[i]) & int(masks[j])).count("1") > allowed
     ]
 

@@ -37,7 +37,8 @@ benchmark workload W2 states its noise.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -360,10 +361,16 @@ def _validate_omni(params: OmniNoise) -> None:
 
 
 MODELS: dict[str, MotionModel] = {
-    "velocity": MotionModel("velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov),
-    "odometry": MotionModel("odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov),
+    "velocity": MotionModel(
+        "velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov
+    ),
+    "odometry": MotionModel(
+        "odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov
+    ),
     "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov),
-    "omni_body": MotionModel("omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov),
+    "omni_body": MotionModel(
+        "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov
+    ),
 }
 
 
@@ -386,4 +393,3 @@ def validate_noise(name: str, params: object, argument: str = "params.motion") -
             f"{argument} must be a {model.noise_type.__name__} for motion model {name!r}, got {type(params).__name__}"
         )
     model.validate(params)
-

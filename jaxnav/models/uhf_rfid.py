@@ -291,6 +291,7 @@ class GammaParams(NamedTuple):
 DEFAULT_GAMMA = GammaParams(k=2.0, theta=0.5)
 """Used until enough anchor reads exist: unit mean fading power kθ = 1 (our choice)."""
 
+
 class UHFReads(NamedTuple):
     """Reads of one tag in fixed slots: ``J`` per time step (a pytree; leading axes ``[..., T]`` allowed).
 
@@ -442,7 +443,9 @@ def validate_reads(reads: UHFReads, name: str = "reads") -> None:
         raise ValueError(f"{name}.mask must have a read-slot axis, got shape {shape}")
     for field in ("rssi", "phase", "wavelength"):
         if np.shape(getattr(reads, field)) != shape:
-            raise ValueError(f"{name}.{field} must have the mask's shape {shape}, got {np.shape(getattr(reads, field))}")
+            raise ValueError(
+                f"{name}.{field} must have the mask's shape {shape}, got {np.shape(getattr(reads, field))}"
+            )
     if np.shape(reads.reader) != shape + (4,):
         raise ValueError(f"{name}.reader must have shape {shape + (4,)}, got {np.shape(reads.reader)}")
     mask_dtype = getattr(reads.mask, "dtype", None)  # a tracer has a dtype but no value
@@ -455,7 +458,9 @@ def validate_reads(reads: UHFReads, name: str = "reads") -> None:
     m = np.asarray(reads.mask)
     for field in ("reader", "rssi", "phase", "wavelength"):
         if not np.all(np.isfinite(np.asarray(getattr(reads, field)))):
-            raise ValueError(f"{name}.{field} must be finite everywhere (masked slots too: fill them with any finite value)")
+            raise ValueError(
+                f"{name}.{field} must be finite everywhere (masked slots too: fill them with any finite value)"
+            )
     if m.any():
         validate_rssi(np.asarray(reads.rssi)[m], name=f"{name}.rssi")
         validate_phase(np.asarray(reads.phase)[m], name=f"{name}.phase")
@@ -506,7 +511,9 @@ def off_boresight_angle(direction: Any, heading: Any) -> jax.Array:
     return _off_boresight(direction, jnp.asarray(heading))
 
 
-def antenna_gain(direction: Any, heading: Any, params: AntennaParams = DEFAULT_ANTENNA, softness: Any = None) -> jax.Array:
+def antenna_gain(
+    direction: Any, heading: Any, params: AntennaParams = DEFAULT_ANTENNA, softness: Any = None
+) -> jax.Array:
     """Reader antenna gain ``G_R`` (linear) towards ``direction [..., 3]``, [A] §4.3.1.
 
     ``G_0`` for ``γ ≤ φ_s`` (main lobe, opening ``2φ_s``), ``G_SLL`` for
@@ -605,7 +612,11 @@ def _check_geometry(reader_pose, tag_xyz):
 
 
 def power_scale(
-    reader_pose: Any, tag_xyz: Any, params: ChannelParams = DEFAULT_CHANNEL, softness: Any = None, wavelength: Any = None
+    reader_pose: Any,
+    tag_xyz: Any,
+    params: ChannelParams = DEFAULT_CHANNEL,
+    softness: Any = None,
+    wavelength: Any = None,
 ) -> jax.Array:
     """``a = P_T η_T G_R² G_T² L²`` (W), so that ``RSSI = a·|h|⁴`` ([A] §4.3.1).
 
@@ -794,8 +805,10 @@ def log_w_phase(phi_meas: Any, phi_pred: Any, sigma: Any, wavelength: Any = DEFA
 def read_model_float32(channel: ChannelParams, gamma: GammaParams) -> tuple[ChannelParams, GammaParams]:
     """``(channel, gamma)`` with every leaf a float32 array (a filter's differentiable params)."""
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return (ChannelParams(*(f32(c) for c in channel[:4]), AntennaParams(*(f32(c) for c in channel.antenna))),
-            GammaParams(f32(gamma.k), f32(gamma.theta)))
+    return (
+        ChannelParams(*(f32(c) for c in channel[:4]), AntennaParams(*(f32(c) for c in channel.antenna))),
+        GammaParams(f32(gamma.k), f32(gamma.theta)),
+    )
 
 
 def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any, prefix: str = "params") -> None:
@@ -831,7 +844,9 @@ def _log_power_scale_from_geometry(d, d2, reader_pose, tag_xyz, params: ChannelP
         dot = d[0] * c + d[1] * s_
         log_g = _log_gain_stepped(dot, jnp.sqrt(d2), params.antenna)
     else:
-        log_g = jnp.log(_gain_nocheck(jnp.stack(jnp.broadcast_arrays(*d), -1), reader_pose[..., 3], params.antenna, softness))
+        log_g = jnp.log(
+            _gain_nocheck(jnp.stack(jnp.broadcast_arrays(*d), -1), reader_pose[..., 3], params.antenna, softness)
+        )
     h_r, h_t = reader_pose[..., 2], tag_xyz[..., 2]
     hh = h_r * h_t
     log_d2 = jnp.log(d2)
@@ -929,8 +944,24 @@ def read_log_likelihood(
     The per-read terms are :func:`read_log_terms`; the tests check them against
     :func:`log_w_rssi` of :func:`power_scale` plus :func:`log_w_phase`.
     """
-    return jnp.sum(read_log_terms(reader_pose, tag_xyz, theta_offset, rssi, phi, wavelength, mask, channel, gamma,
-                                  phase_sigma, use_rssi, use_phase, softness), axis=-1)
+    return jnp.sum(
+        read_log_terms(
+            reader_pose,
+            tag_xyz,
+            theta_offset,
+            rssi,
+            phi,
+            wavelength,
+            mask,
+            channel,
+            gamma,
+            phase_sigma,
+            use_rssi,
+            use_phase,
+            softness,
+        ),
+        axis=-1,
+    )
 
 
 # --------------------------------------------------------------------------------------

@@ -186,8 +186,10 @@ class ReceiverConfig:
     def __post_init__(self) -> None:
         for name in ("fs_hz", "window_s"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (
-                math.isfinite(v) and v > 0
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float, np.floating, np.integer))
+                or not (math.isfinite(v) and v > 0)
             ):
                 raise ValueError(f"{name} must be a finite positive number, got {v!r}")
         f_max = max(ir.FREQUENCIES_HZ)
@@ -293,8 +295,19 @@ def default_params(**overrides: Any) -> ReceiverParams:
 
 def validate_params(params: ReceiverParams) -> None:
     """Host-side checks with the offending field named (value checks skipped for tracers)."""
-    for name in ("height", "led_power", "lambertian_order", "gain", "v_sat", "v_offset",
-                 "noise_sd", "duty", "guard", "rel_guard", "max_spread"):
+    for name in (
+        "height",
+        "led_power",
+        "lambertian_order",
+        "gain",
+        "v_sat",
+        "v_offset",
+        "noise_sd",
+        "duty",
+        "guard",
+        "rel_guard",
+        "max_spread",
+    ):
         check_shape(f"params.{name}", getattr(params, name), ())
     check_shape("params.offsets", params.offsets, (None, 2))
     if np.shape(params.offsets)[0] < 1:
@@ -388,8 +401,12 @@ def detection_range(params: ReceiverParams) -> jax.Array:
     h = params.height
     m = params.lambertian_order
     log_x = (
-        jnp.log(params.gain) + jnp.log(params.led_power) + jnp.log1p(m) - jnp.log(2.0 * jnp.pi)
-        + (m + 1.0) * jnp.log(h) - jnp.log(detection_amplitude(params))
+        jnp.log(params.gain)
+        + jnp.log(params.led_power)
+        + jnp.log1p(m)
+        - jnp.log(2.0 * jnp.pi)
+        + (m + 1.0) * jnp.log(h)
+        - jnp.log(detection_amplitude(params))
     )
     e2 = jnp.exp(2.0 * log_x / (m + 3.0)) - h * h
     return jnp.sqrt(jnp.maximum(e2, 0.0))
@@ -598,8 +615,9 @@ def _sweep(key, offsets_m, code_mask, params, config, n_windows):
     shift = jnp.concatenate([params.offsets[0], jnp.zeros(1, params.offsets.dtype)])
     poses = jnp.stack([offsets_m, jnp.zeros_like(offsets_m), jnp.zeros_like(offsets_m)], axis=1) - shift
     # window w at offset i uses key fold_in(fold_in(key, i), w)
-    keys = jax.vmap(lambda i: jax.vmap(lambda w: jax.random.fold_in(jax.random.fold_in(key, i), w))(
-        jnp.arange(n_windows)))(jnp.arange(n)).reshape((n * n_windows,) + key.shape)
+    keys = jax.vmap(
+        lambda i: jax.vmap(lambda w: jax.random.fold_in(jax.random.fold_in(key, i), w))(jnp.arange(n_windows))
+    )(jnp.arange(n)).reshape((n * n_windows,) + key.shape)
     bits = ir.mask_bits(code_mask)
 
     def window(k, pose):
@@ -648,6 +666,7 @@ def calibration_sweep(
     mask = ir.to_mask((code,))
     params = params._replace(height=jnp.asarray(height, jnp.float32))
     validate_params(params)
-    volts = _sweep_jit(key, jnp.asarray(off / 1000.0, jnp.float32), jnp.asarray(mask, jnp.int32),
-                       params, config, n_windows)
+    volts = _sweep_jit(
+        key, jnp.asarray(off / 1000.0, jnp.float32), jnp.asarray(mask, jnp.int32), params, config, n_windows
+    )
     return jnp.asarray(off, jnp.float32), volts

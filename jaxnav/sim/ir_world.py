@@ -47,7 +47,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import is_concrete, check_finite, check_nonnegative, check_positive, check_positive_int, check_shape
+from jaxnav.core.validation import (
+    check_finite,
+    check_nonnegative,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    is_concrete,
+)
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import ir
 from jaxnav.models.motion import omni_body_mean
@@ -242,8 +249,9 @@ def polyline_path(
     return np.concatenate([xy, th[:, None]], axis=1).astype(np.float32)
 
 
-def spot_grid(nx: int = 14, ny: int = 5, x: tuple[float, float] = (0.3, 2.9),
-              y: tuple[float, float] = (0.4, 1.2)) -> np.ndarray:
+def spot_grid(
+    nx: int = 14, ny: int = 5, x: tuple[float, float] = (0.3, 2.9), y: tuple[float, float] = (0.4, 1.2)
+) -> np.ndarray:
     """``[ny · nx, 2]`` marked spots (m) on a regular grid, row by row (y outer, x inner).
 
     [W] §5.4.2 marks 70 spots (Fig. 5.12, no coordinates). Ours: the default

@@ -19,8 +19,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxnav.models import landmarks as lm
 from jaxnav.core.weights import wrap_angle
+from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
 
 __all__ = ["SimulatedRun", "square_room_landmarks", "loop_controls", "simulate"]

@@ -287,7 +287,9 @@ def _check_carpet(carpet: TagCarpet, name: str = "carpet", values: bool = False)
     if values and is_concrete(carpet.jitter):
         v = np.asarray(carpet.jitter)
         if not np.all(np.isfinite(v)) or np.max(np.abs(v), initial=0.0) > carpet.layout.max_jitter * (1 + 1e-6) + 1e-12:
-            raise ValueError(f"{name}.jitter must be finite with |jitter| ≤ layout.max_jitter = {carpet.layout.max_jitter} m")
+            raise ValueError(
+                f"{name}.jitter must be finite with |jitter| ≤ layout.max_jitter = {carpet.layout.max_jitter} m"
+            )
 
 
 # ---------------------------------------------------------------------------
@@ -646,9 +648,7 @@ def random_controls(
     d = _check_dt(dt)
     margin = 1.001 * hi_s * d
     if not (xmax - xmin > 2 * margin and ymax - ymin > 2 * margin):
-        raise ValueError(
-            f"bounds {bounds!r} are too small: each side must exceed 2·speed_max·dt = {2 * margin:g} m"
-        )
+        raise ValueError(f"bounds {bounds!r} are too small: each side must exceed 2·speed_max·dt = {2 * margin:g} m")
     if start is None:
         start = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax))
     sx, sy = (float(a) for a in start)
@@ -782,7 +782,9 @@ def simulate(
     _check_carpet(carpet, values=True)
     hf_rfid.validate_params(readers, "readers")
     if motion_model not in ("omni", "omni_body"):
-        raise ValueError(f"motion_model must be 'omni' or 'omni_body' (the frame of the odometry), got {motion_model!r}")
+        raise ValueError(
+            f"motion_model must be 'omni' or 'omni_body' (the frame of the odometry), got {motion_model!r}"
+        )
     sd = odometry_sd.sd if isinstance(odometry_sd, OmniNoise) else odometry_sd
     sd = jnp.asarray(sd)
     check_shape("odometry_sd", sd, (3,))
@@ -814,8 +816,19 @@ def simulate(
         if is_concrete(kid_step) and not 0 <= int(kid_step) < controls.shape[0]:
             raise ValueError(f"kidnap.step must be in [0, {controls.shape[0]}), got {int(kid_step)}")
     return _simulate_jit(
-        key, carpet, readers.offsets, readers.half_width, start_pose, controls, sd, kid_step, kid_pose,
-        motion_model, side, n, k,
+        key,
+        carpet,
+        readers.offsets,
+        readers.half_width,
+        start_pose,
+        controls,
+        sd,
+        kid_step,
+        kid_pose,
+        motion_model,
+        side,
+        n,
+        k,
     )
 
 
@@ -905,7 +918,7 @@ def soft_inside(e: jax.Array, half_width: jax.Array, temperature: jax.Array) -> 
 
 def _log1mexp(x: jax.Array) -> jax.Array:
     """``log(1 − eˣ)`` for ``x ≤ 0`` (Mächler 2012), finite with finite gradients; ``x`` clamped below 0."""
-    x = jnp.minimum(x, -jnp.finfo(jnp.result_type(x)).tiny ** 0.5)
+    x = jnp.minimum(x, -(jnp.finfo(jnp.result_type(x)).tiny ** 0.5))
     near = x > -math.log(2.0)
     a = jnp.where(near, x, -1.0)
     b = jnp.where(near, -1.0, x)
@@ -1001,7 +1014,17 @@ def soft_detection_log_likelihood(
     n = candidates_per_axis(carpet.layout, 2.0 * w)
     layout = carpet.layout
     step = lambda pose, det: _soft_step(  # noqa: E731
-        layout, carpet.jitter, pose, det, offsets, half_width, temperature,
-        math.log(eps), math.log1p(-2 * eps), math.log1p(-eps), w, n,
+        layout,
+        carpet.jitter,
+        pose,
+        det,
+        offsets,
+        half_width,
+        temperature,
+        math.log(eps),
+        math.log1p(-2 * eps),
+        math.log1p(-eps),
+        w,
+        n,
     )
     return jnp.sum(jax.vmap(step)(poses, detections))

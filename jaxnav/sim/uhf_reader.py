@@ -121,7 +121,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.weights import wrap_angle
 from jaxnav.core.validation import (
     check_finite,
     check_nonnegative,
@@ -130,8 +129,9 @@ from jaxnav.core.validation import (
     check_shape,
     is_concrete,
 )
+from jaxnav.core.weights import wrap_angle
 from jaxnav.models import uhf_rfid
-from jaxnav.models.uhf_rfid import ChannelParams, DEFAULT_CHANNEL, GammaParams, UHFReads
+from jaxnav.models.uhf_rfid import DEFAULT_CHANNEL, ChannelParams, GammaParams, UHFReads
 
 __all__ = [
     "SEARCH_BOX_A",
@@ -247,7 +247,9 @@ def get_multipath(multipath: str | Multipath) -> Multipath:
             raise ValueError(f"multipath must be one of {sorted(MULTIPATH_NAMES)} or a Multipath, got {multipath!r}")
         return MULTIPATH_NAMES[multipath]
     if not isinstance(multipath, Multipath):
-        raise ValueError(f"multipath must be one of {sorted(MULTIPATH_NAMES)} or a Multipath, got {type(multipath).__name__}")
+        raise ValueError(
+            f"multipath must be one of {sorted(MULTIPATH_NAMES)} or a Multipath, got {type(multipath).__name__}"
+        )
     validate_multipath(multipath)
     return multipath
 
@@ -611,7 +613,9 @@ def composite_channel(
     seqs = image_sequences(_order_for(mp, order))
     _check_inside_room("path", np.asarray(path)[:, :3] if is_concrete(path) else path, mp, len(seqs))
     _check_inside_room("tag", tag, mp, len(seqs))
-    re, im, _ = _composite_jit(jnp.asarray(path), jnp.asarray(tag), jnp.asarray(lam), channel.antenna, mp.room, seqs, softness)
+    re, im, _ = _composite_jit(
+        jnp.asarray(path), jnp.asarray(tag), jnp.asarray(lam), channel.antenna, mp.room, seqs, softness
+    )
     return CompositeChannel(re * re + im * im, wrap_angle(2.0 * jnp.arctan2(im, re)))
 
 
@@ -674,8 +678,21 @@ def _simulate(key, path, tags, offsets, tag_ids, lam_t, channel, mp, sens, tag_s
         k_tag = jax.random.fold_in(key, tid)
 
         def per_step(t, reader, lam):
-            return _one(jax.random.fold_in(k_tag, t), reader, tag, off, lam, channel, mp, sens, tag_sens, p_read,
-                        num_reads, seqs, softness)
+            return _one(
+                jax.random.fold_in(k_tag, t),
+                reader,
+                tag,
+                off,
+                lam,
+                channel,
+                mp,
+                sens,
+                tag_sens,
+                p_read,
+                num_reads,
+                seqs,
+                softness,
+            )
 
         return jax.vmap(per_step)(steps, path, lam_t)
 
@@ -785,7 +802,9 @@ def simulate_reads(
     )
 
 
-def anchor_power_scale(reads: UHFReads, anchor: Any, channel: ChannelParams = DEFAULT_CHANNEL, softness: Any = None) -> jax.Array:
+def anchor_power_scale(
+    reads: UHFReads, anchor: Any, channel: ChannelParams = DEFAULT_CHANNEL, softness: Any = None
+) -> jax.Array:
     """The true ``a = P_T η_T G_R² G_T² L²`` (W) of every read slot of an anchor at the known ``anchor [3]``.
 
     ``a`` is :func:`jaxnav.models.uhf_rfid.power_scale` at each read's reader pose
@@ -797,5 +816,9 @@ def anchor_power_scale(reads: UHFReads, anchor: Any, channel: ChannelParams = DE
     uhf_rfid.validate_reads(reads)
     check_shape("anchor", anchor, (3,))
     return uhf_rfid.power_scale(
-        jnp.asarray(reads.reader), jnp.asarray(anchor), channel, softness=softness, wavelength=jnp.asarray(reads.wavelength)
+        jnp.asarray(reads.reader),
+        jnp.asarray(anchor),
+        channel,
+        softness=softness,
+        wavelength=jnp.asarray(reads.wavelength),
     )

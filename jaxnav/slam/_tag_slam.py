@@ -62,8 +62,9 @@ Choices where [W] is silent (stated here, tested):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -311,6 +312,7 @@ def _compact(det: hf_rfid.TagDetections, max_tags: int, lanes: int):
 
 def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) -> StepResult:
     """A result on the ``L`` compacted slots put back on the ``K`` slots (the others write and report nothing)."""
+
     def put(fill, v):
         return jnp.full((num_slots,) + v.shape[1:], fill, v.dtype).at[order].set(v)
 
@@ -359,7 +361,9 @@ def _compacted_result_jvp(config, tag_model, lanes, primals, tangents):
     return jax.jvp(all_slots, primals, tangents)
 
 
-def _slot_result(key, robot, rows, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel) -> StepResult:
+def _slot_result(
+    key, robot, rows, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel
+) -> StepResult:
     """The step on all ``K`` slots of ``det``, up to the table write (module docstring): ``robot`` is
     ``(poses, log_weights)``, ``rows`` the slots' rows of the tag table."""
     state_poses, state_log_weights = robot
@@ -394,18 +398,18 @@ def _slot_result(key, robot, rows, config, params, control, det: hf_rfid.TagDete
     # [K, K] matrix sums the scores of the group (a new tag's first reader, which placed the
     # particles, is left out). This is the group's joint likelihood without a K·K·J evaluation.
     tag_keys = jax.vmap(lambda i: jax.random.fold_in(k_tags, i))(ids)
-    particles, log_w = jax.vmap(
-        lambda k, row, new, off: tag_model.propose(k, row, new, pose_est, off, config, params)
-    )(tag_keys, rows, is_new, offsets[first])
+    particles, log_w = jax.vmap(lambda k, row, new, off: tag_model.propose(k, row, new, pose_est, off, config, params))(
+        tag_keys, rows, is_new, offsets[first]
+    )
     # Materialised for the same reason as the poses: PS-SLAM's ring mean fused the jitter draw and
     # recomputed it for every ring entry (3.5 ms of a 5.7 ms step at 24 slots, lag 20).
     particles = jax.lax.optimization_barrier(particles)
     own = jax.vmap(lambda p, off: hf_rfid.tag_log_likelihood(p, pose_est, off, sensor))(particles, offsets)
     group = same & jnp.where(is_new[:, None], slots[None, :] != first[:, None], True)
     loglik = jnp.matmul(group.astype(own.dtype), own, precision=jax.lax.Precision.HIGHEST)
-    new_rows = jax.vmap(
-        lambda k, row, p, lw, ll, new: tag_model.finish(k, row, p, lw, ll, new, config, params)
-    )(tag_keys, rows, particles, log_w, loglik, is_new)
+    new_rows = jax.vmap(lambda k, row, p, lw, ll, new: tag_model.finish(k, row, p, lw, ll, new, config, params))(
+        tag_keys, rows, particles, log_w, loglik, is_new
+    )
     write = leader & ~lost
     write_ids = jnp.where(write, ids, max_tags)  # out of range: dropped by the scatter
 

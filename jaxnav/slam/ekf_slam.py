@@ -91,6 +91,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import kalman
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_covariance,
@@ -99,7 +100,6 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.core.weights import wrap_angle
-from jaxnav.core.batch import scan_filter
 from jaxnav.localization.ekf import validate_inputs
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
@@ -414,14 +414,14 @@ def _correct(mean, cov, seen, obs: lm.RangeBearingObs, r, gate):
         )
         return (mean, cov, seen), out
 
-    (mean, cov, seen), (nis, ll, accepted, gated, new) = jax.lax.scan(
-        body, (mean, cov, seen), (obs.ids, obs.z, valid)
-    )
+    (mean, cov, seen), (nis, ll, accepted, gated, new) = jax.lax.scan(body, (mean, cov, seen), (obs.ids, obs.z, valid))
     counts = (num_ignored, jnp.sum(gated).astype(jnp.int32), jnp.sum(new).astype(jnp.int32))
     return mean, cov, seen, nis, jnp.sum(ll), accepted, counts
 
 
-def _step(state: EKFSLAMState, config: EKFSLAMConfig, params: EKFSLAMParams, control, obs) -> tuple[EKFSLAMState, EKFSLAMInfo]:
+def _step(
+    state: EKFSLAMState, config: EKFSLAMConfig, params: EKFSLAMParams, control, obs
+) -> tuple[EKFSLAMState, EKFSLAMInfo]:
     model = get_motion_model(config.motion_model)
     mean, cov = _predict(state.mean, state.cov, model, control, params.motion)
     r = jnp.diag(params.sensor.sd**2).astype(mean.dtype)

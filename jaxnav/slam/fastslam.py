@@ -63,16 +63,17 @@ Interface::
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.batch import scan_filter
 from jaxnav.core import fastmath, kalman, resampling, weights
+from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -161,6 +162,8 @@ def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
 RANGE_BEARING = ObservationModel(
     "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
 )
+
+
 def _footprint_update(pose, mean, cov, z, r) -> kalman.UpdateResult:
     """The HF footprint's landmark update in closed form (exactly the EKF's: ``h`` is linear in the landmark).
 
@@ -186,7 +189,9 @@ def _footprint_update(pose, mean, cov, z, r) -> kalman.UpdateResult:
     gain = fastmath.matmul(cov, s_inv)
     m_ = cov - fastmath.matmul(gain, cov)
     new_cov = kalman.ensure_pd(m_ - fastmath.matmul(m_, gain.T) + fastmath.matmul(fastmath.matmul(gain, noise), gain.T))
-    return kalman.UpdateResult(mean + fastmath.matmul(gain, e), new_cov, maha, log_lik, jnp.ones((), bool), jnp.zeros((), bool))
+    return kalman.UpdateResult(
+        mean + fastmath.matmul(gain, e), new_cov, maha, log_lik, jnp.ones((), bool), jnp.zeros((), bool)
+    )
 
 
 def _footprint_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
@@ -196,8 +201,17 @@ def _footprint_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
 
 
 HF_FOOTPRINT = ObservationModel(
-    "hf_footprint", 2, 2, hf_rfid.robot_frame, hf_rfid.world_frame, hf_rfid.footprint_cov, (), hf_rfid.validate_params,
-    _footprint_update, _footprint_initialise, pose_free_covariance=True,
+    "hf_footprint",
+    2,
+    2,
+    hf_rfid.robot_frame,
+    hf_rfid.world_frame,
+    hf_rfid.footprint_cov,
+    (),
+    hf_rfid.validate_params,
+    _footprint_update,
+    _footprint_initialise,
+    pose_free_covariance=True,
 )
 """The HF-RFID detection as a Gaussian measurement (SPEC §3, [W] §3.2): ``z`` = the detecting reader's
 position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
@@ -436,7 +450,11 @@ def init(
         lm_means = jnp.asarray(landmark_means, pose.dtype)
         check_shape("landmark_means", lm_means, (m, d))
         check_finite("landmark_means", lm_means)
-        lm_covs = 1e-2 * jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (m, d, d)) if landmark_covs is None else jnp.asarray(landmark_covs, pose.dtype)
+        lm_covs = (
+            1e-2 * jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (m, d, d))
+            if landmark_covs is None
+            else jnp.asarray(landmark_covs, pose.dtype)
+        )
         check_shape("landmark_covs", lm_covs, (m, d, d))
         means = jnp.broadcast_to(lm_means, (n, m, d))
         covs = jnp.broadcast_to(lm_covs, cov_shape)
@@ -501,8 +519,10 @@ def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kal
     shared by the particles, ``[D, D]``; a shared covariance comes out shared."""
     axis = None if cov.ndim == mu.ndim else 0
     ekf = _shared_vmap(
-        om, lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
-        in_axes=(0, 0, axis), out_axes=kalman.UpdateResult(0, axis, 0, 0, 0, 0),
+        om,
+        lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
+        in_axes=(0, 0, axis),
+        out_axes=kalman.UpdateResult(0, axis, 0, 0, 0, 0),
     )
     return ekf(poses, mu, cov)
 
@@ -692,8 +712,14 @@ def _proposal(om, r, prior_mean, prior_cov, means, covs, seen, obs, valid, ids):
         h_m = jax.jacfwd(lambda mu: om.mean(g.mean, mu))(mu_j)
         q = r + h_m @ cov_j @ h_m.T
         res = kalman.ekf_update(
-            g.mean, g.cov, z, lambda x: om.mean(x, mu_j), q,
-            valid=ok & seen[j], state_angle_dims=_POSE_ANGLE_DIMS, obs_angle_dims=om.angle_dims,
+            g.mean,
+            g.cov,
+            z,
+            lambda x: om.mean(x, mu_j),
+            q,
+            valid=ok & seen[j],
+            state_angle_dims=_POSE_ANGLE_DIMS,
+            obs_angle_dims=om.angle_dims,
         )
         return kalman.Gaussian(res.mean, res.cov), res.log_likelihood
 
@@ -719,6 +745,7 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
         poses = model.sample(k_move, state.poses, control, params.motion)
         proposal_ll = jnp.zeros(poses.shape[0], poses.dtype)
     else:
+
         def propose(k, x, means, covs):
             prior_mean = model.mean(x, control)
             prior_cov = kalman.ensure_pd(model.process_cov(x, control, params.motion))
@@ -815,8 +842,15 @@ def _run_unroll(config: FastSLAMConfig) -> int:
     return 2 if not _copies_in_place(config) and config.map_floats >= UNROLL_MIN_FLOATS else 1
 
 
-def run(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, initial_state: FastSLAMState,
-        donate_state: bool = False):
+def run(
+    key,
+    config: FastSLAMConfig,
+    params: FastSLAMParams,
+    controls,
+    observations,
+    initial_state: FastSLAMState,
+    donate_state: bool = False,
+):
     """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
 
     Returns ``(final_state, trace)``; ``trace.estimate`` is ``[T, 3]``. Use

@@ -178,8 +178,12 @@ def _finish(key, row: TagTable, particles, log_w, loglik, is_new, config, params
     """[W] Alg. 1 lines 10–16: weight by eq. 3.7, resample, estimate."""
     norm = weights.normalize(log_w + loglik)
     res = resampling.conditional_resample(
-        jax.random.fold_in(key, 1), particles, norm.log_weights, threshold=config.tag_ess_threshold,
-        scheme=config.resampling, normalized=True,
+        jax.random.fold_in(key, 1),
+        particles,
+        norm.log_weights,
+        threshold=config.tag_ess_threshold,
+        scheme=config.resampling,
+        normalized=True,
     )
     estimate = weights.mean_from_probabilities(res.particles, jnp.exp(res.log_weights))
     return TagTable(res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, row.counts + 1)
@@ -213,7 +217,9 @@ def _validate(config, params, state, controls, detections, time_axis):
     _tag_slam.validate_inputs(config, params, controls, detections, time_axis)
 
 
-def step(key, state: PFSLAMState, config: PFSLAMConfig, params: PFSLAMParams, control, detections: hf_rfid.TagDetections):
+def step(
+    key, state: PFSLAMState, config: PFSLAMConfig, params: PFSLAMParams, control, detections: hf_rfid.TagDetections
+):
     """One PF-SLAM step, validated on the host, then jitted.
 
     ``state`` is *donated*: the tag table is updated in place, so do not use
@@ -231,8 +237,15 @@ _run_jit = jax.jit(_run_scan, static_argnames=("config",))
 _run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
 
 
-def run(key, config: PFSLAMConfig, params: PFSLAMParams, controls, detections: hf_rfid.TagDetections,
-        initial_state: PFSLAMState, donate_state: bool = False):
+def run(
+    key,
+    config: PFSLAMConfig,
+    params: PFSLAMParams,
+    controls,
+    detections: hf_rfid.TagDetections,
+    initial_state: PFSLAMState,
+    donate_state: bool = False,
+):
     """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
 
     Args:

@@ -155,13 +155,19 @@ def _finish(key, row: SmootherTable, particles, log_w, loglik, is_new, config, p
     count = jnp.where(is_new, 0, row.counts)
     buf = ring.ring_push(ring.RingBuffer(row.history, count % lag, jnp.minimum(count, lag)), particles)
     res = resampling.conditional_resample(
-        jax.random.fold_in(key, 1), particles, norm.log_weights, threshold=config.tag_ess_threshold,
-        scheme=config.resampling, normalized=True,
+        jax.random.fold_in(key, 1),
+        particles,
+        norm.log_weights,
+        threshold=config.tag_ess_threshold,
+        scheme=config.resampling,
+        normalized=True,
     )
     buf = buf._replace(data=jnp.take(buf.data, res.ancestors, axis=1))  # histories move with their particles
     smoothed = ring.ring_mean(buf)  # [J, 2]
     estimate = weights.mean_from_probabilities(smoothed, jnp.exp(res.log_weights))
-    return SmootherTable(res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data)
+    return SmootherTable(
+        res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data
+    )
 
 
 TAG_MODEL = _tag_slam.TagModel(_propose, _finish)
@@ -204,7 +210,9 @@ def _validate(config, params, state, controls, detections, time_axis):
     _tag_slam.validate_inputs(config, params, controls, detections, time_axis)
 
 
-def step(key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections: hf_rfid.TagDetections):
+def step(
+    key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections: hf_rfid.TagDetections
+):
     """One PS-SLAM step, validated on the host, then jitted; ``state`` is donated (updated in place)."""
     _validate(config, params, state, control, detections, time_axis=False)
     return _step_jit(key, state, config, params, control, detections)
@@ -218,8 +226,15 @@ _run_jit = jax.jit(_run_scan, static_argnames=("config",))
 _run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
 
 
-def run(key, config: PSSLAMConfig, params: PSSLAMParams, controls, detections: hf_rfid.TagDetections,
-        initial_state: PSSLAMState, donate_state: bool = False):
+def run(
+    key,
+    config: PSSLAMConfig,
+    params: PSSLAMParams,
+    controls,
+    detections: hf_rfid.TagDetections,
+    initial_state: PSSLAMState,
+    donate_state: bool = False,
+):
     """Filter a sequence in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``); returns ``(final_state, SLAMInfo trace)``.
 
     Args:

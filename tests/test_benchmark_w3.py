@@ -50,6 +50,7 @@ import pytest
 
 from benchmarks.peers.numpy_fastslam import NumpyFastSLAM
 from benchmarks.workloads import w3_fastslam as w3
+from jaxnav.models import observation
 from jaxnav.models.landmarks import RangeBearingNoise, RangeBearingObs
 from jaxnav.models.motion import VelocityNoise
 from jaxnav.slam import fastslam as fs
@@ -238,10 +239,10 @@ def test_prototype_landmark_ekf_matches_kalman_float64():
         poses, _, means, covs, z = (jnp.asarray(x) for x in _case(np.float64))
         r = jnp.diag(jnp.asarray(SENSOR_SD, jnp.float64) ** 2)
         j = 5
-        ref = jax.vmap(lambda p, mu, c: fs._landmark_ekf(fs.RANGE_BEARING, r, p, mu, c, z[0]))(
+        ref = jax.vmap(lambda p, mu, c: fs._landmark_ekf(observation.RANGE_BEARING, r, p, mu, c, z[0]))(
             poses, means[:, j], covs[:, j]
         )
-        mu, cov, ll = w3.prototype_landmark_ekf(fs.RANGE_BEARING, r, poses, means[:, j], covs[:, j], z[0])
+        mu, cov, ll = w3.prototype_landmark_ekf(observation.RANGE_BEARING, r, poses, means[:, j], covs[:, j], z[0])
         np.testing.assert_allclose(np.asarray(mu), np.asarray(ref.mean), rtol=0, atol=1e-9)
         np.testing.assert_allclose(
             np.asarray(cov), np.asarray(ref.cov), rtol=0, atol=1e-9 * float(jnp.abs(ref.cov).max())

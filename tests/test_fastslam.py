@@ -9,7 +9,7 @@ import pytest
 
 from jaxnav import metrics
 from jaxnav.core import fastmath, resampling
-from jaxnav.models import hf_rfid, motion
+from jaxnav.models import hf_rfid, motion, observation
 from jaxnav.models import landmarks as lm
 from jaxnav.sim import landmark_world as lw
 from jaxnav.slam import fastslam as fs
@@ -178,7 +178,7 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     applying the slots one after the other gives: new landmarks, repeats of new and of mapped
     landmarks (three times), unknown ids and masked NaN slots, for 1, 2, 3 and all lanes."""
     n, m = 8, 6
-    om, r = fs.RANGE_BEARING, jnp.diag(SENSOR.sd**2)
+    om, r = observation.RANGE_BEARING, jnp.diag(SENSOR.sd**2)
     rng = np.random.default_rng(3)
     poses = jnp.asarray(X0 + rng.normal(0, 0.05, (n, 3)), jnp.float32)
     lms = jnp.asarray(rng.uniform(0, 10, (m, 2)), jnp.float32)
@@ -241,8 +241,8 @@ def test_footprint_closed_form_equals_the_generic_ekf(getkey):
     skips the rotation); a model without the hooks falls back to the generic path."""
     from jaxnav.models import hf_rfid
 
-    generic = fs.HF_FOOTPRINT._replace(update=None, initialise=None)
-    assert fs.HF_FOOTPRINT.update is not None and generic.update is None
+    generic = observation.HF_FOOTPRINT._replace(update=None, initialise=None)
+    assert observation.HF_FOOTPRINT.update is not None and generic.update is None
     with jax.enable_x64(True):
         n = 64
         poses = jax.random.uniform(getkey(), (n, 3), jnp.float64, -3.0, 3.0)
@@ -253,12 +253,12 @@ def test_footprint_closed_form_equals_the_generic_ekf(getkey):
         r = hf_rfid.footprint_cov(hf_rfid.reader_params(0.06))
         r = jnp.asarray(r, jnp.float64)
         update = lambda om: jax.vmap(lambda p, m, c, z: fs._landmark_ekf(om, r, p, m, c, z))  # noqa: E731
-        got, ref = update(fs.HF_FOOTPRINT)(poses, means, covs, zs), update(generic)(poses, means, covs, zs)
+        got, ref = update(observation.HF_FOOTPRINT)(poses, means, covs, zs), update(generic)(poses, means, covs, zs)
         for field in ("mean", "cov", "nis", "log_likelihood"):
             np.testing.assert_allclose(getattr(got, field), getattr(ref, field), rtol=1e-10, atol=1e-12, err_msg=field)
         assert np.all(np.abs(np.asarray(got.mean - means)).sum(-1) > 1e-6)  # not a comparison of two no-ops
         init = lambda om: jax.vmap(lambda p, z: fs._landmark_init(om, r, p, z))  # noqa: E731
-        for g, f in zip(init(fs.HF_FOOTPRINT)(poses, zs), init(generic)(poses, zs)):
+        for g, f in zip(init(observation.HF_FOOTPRINT)(poses, zs), init(generic)(poses, zs)):
             np.testing.assert_allclose(g, f, rtol=1e-10, atol=1e-14)
 
 
@@ -305,13 +305,15 @@ def _robot_frame_model():
     class Noise(tuple):
         pass
 
-    return fs.ObservationModel("robot_frame_xy", 2, 2, mean, inverse, lambda sd: jnp.diag(sd**2), (), lambda sd: None)
+    return observation.ObservationModel(
+        "robot_frame_xy", 2, 2, mean, inverse, lambda sd: jnp.diag(sd**2), (), lambda sd: None
+    )
 
 
 def _isotropic_footprint_model():
     """HF_FOOTPRINT (closed-form update, pose-free covariances) with an isotropic noise ``sd² I``
     given directly, so that it runs on the range-bearing world's robot-frame positions."""
-    return fs.HF_FOOTPRINT._replace(
+    return observation.HF_FOOTPRINT._replace(
         name="isotropic_footprint", noise_cov=lambda sd: sd * sd * jnp.eye(2), validate=lambda sd: None
     )
 

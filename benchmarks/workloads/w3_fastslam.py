@@ -687,6 +687,7 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
     fancy-index copy of the maps with the same ancestors.
     """
     from jaxnav.core import resampling
+    from jaxnav.models import observation
     from jaxnav.slam import fastslam as fs
 
     out = []
@@ -697,7 +698,7 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
         _, keys, ctrls, obs = _step_inputs(n)
         key, u, o = keys[1], ctrls[1], obs[1]
         o_none = o._replace(mask=jnp.zeros_like(o.mask))
-        r = fs.RANGE_BEARING.noise_cov(params.sensor)
+        r = observation.RANGE_BEARING.noise_cov(params.sensor)
         valid, ids, _ = fs._slot_valid(o, n)
         # log-weights after one real step (without resampling): realistic ancestors
         lw = jax.block_until_ready(
@@ -709,14 +710,16 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
 
         @partial(jax.jit, donate_argnums=0)
         def update_only(s):
-            upd, _, ll, _ = fs._update_landmarks(fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids)
+            upd, _, ll, _ = fs._update_landmarks(
+                observation.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
+            )
             means, covs = fs._write_rows(s.means, s.covs, upd, jnp.arange(s.poses.shape[0]))
             return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
 
         @partial(jax.jit, donate_argnums=0)
         def proto_update_only(s):
             means, covs, _, ll, _ = _prototype_update_landmarks(
-                fs.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
+                observation.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
             )
             return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
 

@@ -30,8 +30,10 @@ the robot frame) of the tag's robot-frame position ``h(x, m) = R(θ)ᵀ(m − p)
 with the footprint replaced by the Gaussian of the same variance: a uniform
 square of side ``s`` has variance ``s²/12 = σ²/3`` per axis (SPEC §3).
 :func:`robot_frame`, :func:`world_frame` and :func:`footprint_cov` are that
-model's pieces (``jaxnav.slam.fastslam.HF_FOOTPRINT``), and
-:func:`landmark_observations` turns detections into its observation slots.
+model's pieces (``jaxnav.models.observation.HF_FOOTPRINT``), with its landmark update
+and initialisation in closed form (:func:`footprint_landmark_update`,
+:func:`footprint_landmark_initialise`); :func:`landmark_observations` turns detections
+into its observation slots.
 
 Detections of one step are fixed slots (:class:`TagDetections`): tag ID,
 reader index and a validity mask, so the number of tags seen never changes
@@ -48,6 +50,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
+from jaxnav.core.kalman import UpdateResult, ensure_pd, symmetrize
 from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
 
 __all__ = [
@@ -66,6 +69,8 @@ __all__ = [
     "robot_log_likelihood",
     "sample_in_footprint",
     "footprint_cov",
+    "footprint_landmark_update",
+    "footprint_landmark_initialise",
     "landmark_observations",
 ]
 
@@ -279,3 +284,39 @@ def landmark_observations(detections: TagDetections, params: HFReaderParams) -> 
     """FastSLAM observation slots: ``z[k] = offsets[readers[k]]`` (works with a leading time axis)."""
     readers = jnp.clip(detections.readers, 0, params.offsets.shape[0] - 1)
     return ReaderObservations(detections.ids, params.offsets[readers], detections.mask)
+
+
+def footprint_landmark_update(pose, mean, cov, z, r) -> UpdateResult:
+    """The HF footprint's landmark update in closed form (exactly the EKF's: ``h`` is linear in the landmark).
+
+    ``h(x, m) = R(θ)ᵀ(m − p)``, so the detection is the world point ``m_z = p + R(θ) z`` with noise
+    ``N = R(θ) R_z R(θ)ᵀ`` and ``H = I``. The footprint's ``R_z = (σ²/3) I`` is isotropic
+    (:func:`footprint_cov`), so ``N = R_z`` for every heading: the
+    covariance update below does not depend on the pose, and every particle keeps the same
+    landmark covariance (``pose_free_covariance``). ``S = Σ + N``, ``K = Σ S⁻¹``,
+    ``μ' = μ + K (m_z − μ)``, ``Σ' = (I − K) Σ (I − K)ᵀ + K N Kᵀ`` (Joseph form, as
+    :func:`jaxnav.core.kalman.ekf_update`), weight ``log N(m_z − μ; 0, S)``, equal to the
+    robot-frame ``log N(z; h(x, μ), H_m Σ H_mᵀ + R_z)`` because a rotation keeps the Mahalanobis
+    distance and the determinant. 2 × 2 algebra written out: under ``vmap`` the generic EKF's
+    Jacobian and factorisations cost several times more.
+    """
+    noise = r
+    cov = symmetrize(cov)
+    s = cov + noise
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    s_inv = jnp.stack([jnp.stack([s[1, 1], -s[0, 1]]), jnp.stack([-s[1, 0], s[0, 0]])]) / det
+    e = world_frame(pose, z) - mean
+    maha = fastmath.small_sum(e * fastmath.matmul(s_inv, e))
+    log_lik = -0.5 * (maha + jnp.log(det) + 2.0 * np.log(2.0 * np.pi))
+    gain = fastmath.matmul(cov, s_inv)
+    m_ = cov - fastmath.matmul(gain, cov)
+    new_cov = ensure_pd(m_ - fastmath.matmul(m_, gain.T) + fastmath.matmul(fastmath.matmul(gain, noise), gain.T))
+    return UpdateResult(
+        mean + fastmath.matmul(gain, e), new_cov, maha, log_lik, jnp.ones((), bool), jnp.zeros((), bool)
+    )
+
+
+def footprint_landmark_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
+    """``μ = p + R(θ) z``, ``Σ = R(θ) R_z R(θ)ᵀ = R_z`` (the generic ``J R Jᵀ`` with ``J = R(θ)``;
+    ``R_z`` is isotropic, :func:`footprint_landmark_update`)."""
+    return world_frame(pose, z), ensure_pd(r)

@@ -42,13 +42,13 @@ One step:
 
 Observation models
 ------------------
-:class:`ObservationModel` packs ``mean(pose, landmark) -> z``,
-``inverse(pose, z) -> landmark``, ``noise_cov(sensor_params) -> R`` and the
-circular components of ``z``. :data:`RANGE_BEARING` is the point-landmark
-model of :mod:`jaxnav.models.landmarks`; :data:`HF_FOOTPRINT` is the HF-RFID
-reader detection with its footprint as a Gaussian ([W] §3.2, the FastSLAM
-baseline of [W] ch. 3–4). Other sensors plug in by passing their own
-:class:`ObservationModel` as ``config.observation_model``.
+The observation models are :mod:`jaxnav.models.observation`'s
+:class:`~jaxnav.models.observation.ObservationModel` (``mean(pose, landmark) -> z``,
+``inverse(pose, z) -> landmark``, ``noise_cov(sensor_params) -> R``, the circular
+components of ``z``): ``RANGE_BEARING``, the point landmarks of
+:mod:`jaxnav.models.landmarks`, and ``HF_FOOTPRINT``, the HF-RFID reader detection
+with its footprint as a Gaussian ([W] §3.2, the FastSLAM baseline of [W] ch. 3–4).
+Other sensors plug in by passing their own model as ``config.observation_model``.
 Observations are fixed-slot arrays with fields ``ids [K]`` (landmark slot),
 ``z [K, dz]`` and ``mask [K]`` (e.g. :class:`~jaxnav.models.landmarks.RangeBearingObs`);
 masked slots and ids outside ``[0, M)`` are ignored, the latter counted.
@@ -63,7 +63,6 @@ Interface::
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, NamedTuple
@@ -82,10 +81,9 @@ from jaxnav.core.validation import (
     check_positive_int,
     check_shape,
 )
-from jaxnav.models import hf_rfid
-from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
+from jaxnav.models.observation import HF_FOOTPRINT, OBSERVATION_MODELS, RANGE_BEARING, ObservationModel
 
 __all__ = [
     "ObservationModel",
@@ -117,110 +115,6 @@ Below it ``jnp.take`` is faster than the row-copy loop of
 UNROLL_MIN_FLOATS = 256
 """Map size per particle (floats) from which :func:`run` unrolls two steps per scan iteration
 when resampling gathers the maps (:func:`_run_unroll`)."""
-
-
-class ObservationModel(NamedTuple):
-    """A landmark observation model for FastSLAM (hashable: it lives in the static config).
-
-    Attributes:
-        name: label used in messages.
-        obs_dim: ``dz``, size of one measurement.
-        landmark_dim: ``D``, size of a landmark's state.
-        mean: ``h(pose [3], landmark [D]) -> z [dz]``, smooth in both arguments.
-        inverse: ``h⁻¹(pose [3], z [dz]) -> landmark [D]``, used to initialise.
-        noise_cov: ``sensor_params -> R [dz, dz]``.
-        angle_dims: components of ``z`` that are angles (residuals wrapped).
-        validate: host-side check of the sensor parameters (raises ValueError).
-        update: optional exact landmark update ``(pose, mean, cov, z, R) -> kalman.UpdateResult``
-            used instead of the generic EKF (:func:`jaxnav.core.kalman.ekf_update` with the
-            Jacobian of ``mean``), e.g. a closed form for a model linear in the landmark.
-        initialise: optional ``(pose, z, R) -> (mean, cov)`` used instead of
-            ``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ`` with ``J`` by automatic differentiation.
-        pose_free_covariance: the landmark covariance that ``update`` and ``initialise`` return
-            does not depend on the pose (``H_m`` constant and the noise, seen in the landmark's
-            frame, pose-free). Every particle then holds the same covariance of a landmark, and
-            FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``).
-    """
-
-    name: str
-    obs_dim: int
-    landmark_dim: int
-    mean: Callable[[jax.Array, jax.Array], jax.Array]
-    inverse: Callable[[jax.Array, jax.Array], jax.Array]
-    noise_cov: Callable[[Any], jax.Array]
-    angle_dims: tuple[int, ...]
-    validate: Callable[[Any], None]
-    update: Callable[..., kalman.UpdateResult] | None = None
-    initialise: Callable[..., tuple[jax.Array, jax.Array]] | None = None
-    pose_free_covariance: bool = False
-
-
-def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
-    return jnp.diag(sensor.sd**2)
-
-
-RANGE_BEARING = ObservationModel(
-    "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
-)
-
-
-def _footprint_update(pose, mean, cov, z, r) -> kalman.UpdateResult:
-    """The HF footprint's landmark update in closed form (exactly the EKF's: ``h`` is linear in the landmark).
-
-    ``h(x, m) = R(θ)ᵀ(m − p)``, so the detection is the world point ``m_z = p + R(θ) z`` with noise
-    ``N = R(θ) R_z R(θ)ᵀ`` and ``H = I``. The footprint's ``R_z = (σ²/3) I`` is isotropic
-    (:func:`jaxnav.models.hf_rfid.footprint_cov`), so ``N = R_z`` for every heading: the
-    covariance update below does not depend on the pose, and every particle keeps the same
-    landmark covariance (``pose_free_covariance``). ``S = Σ + N``, ``K = Σ S⁻¹``,
-    ``μ' = μ + K (m_z − μ)``, ``Σ' = (I − K) Σ (I − K)ᵀ + K N Kᵀ`` (Joseph form, as
-    :func:`~jaxnav.core.kalman.ekf_update`), weight ``log N(m_z − μ; 0, S)``, equal to the
-    robot-frame ``log N(z; h(x, μ), H_m Σ H_mᵀ + R_z)`` because a rotation keeps the Mahalanobis
-    distance and the determinant. 2 × 2 algebra written out: under ``vmap`` the generic EKF's
-    Jacobian and factorisations cost several times more.
-    """
-    noise = r
-    cov = kalman.symmetrize(cov)
-    s = cov + noise
-    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
-    s_inv = jnp.stack([jnp.stack([s[1, 1], -s[0, 1]]), jnp.stack([-s[1, 0], s[0, 0]])]) / det
-    e = hf_rfid.world_frame(pose, z) - mean
-    maha = fastmath.small_sum(e * fastmath.matmul(s_inv, e))
-    log_lik = -0.5 * (maha + jnp.log(det) + 2.0 * np.log(2.0 * np.pi))
-    gain = fastmath.matmul(cov, s_inv)
-    m_ = cov - fastmath.matmul(gain, cov)
-    new_cov = kalman.ensure_pd(m_ - fastmath.matmul(m_, gain.T) + fastmath.matmul(fastmath.matmul(gain, noise), gain.T))
-    return kalman.UpdateResult(
-        mean + fastmath.matmul(gain, e), new_cov, maha, log_lik, jnp.ones((), bool), jnp.zeros((), bool)
-    )
-
-
-def _footprint_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
-    """``μ = p + R(θ) z``, ``Σ = R(θ) R_z R(θ)ᵀ = R_z`` (the generic ``J R Jᵀ`` with ``J = R(θ)``;
-    ``R_z`` is isotropic, :func:`_footprint_update`)."""
-    return hf_rfid.world_frame(pose, z), kalman.ensure_pd(r)
-
-
-HF_FOOTPRINT = ObservationModel(
-    "hf_footprint",
-    2,
-    2,
-    hf_rfid.robot_frame,
-    hf_rfid.world_frame,
-    hf_rfid.footprint_cov,
-    (),
-    hf_rfid.validate_params,
-    _footprint_update,
-    _footprint_initialise,
-    pose_free_covariance=True,
-)
-"""The HF-RFID detection as a Gaussian measurement (SPEC §3, [W] §3.2): ``z`` = the detecting reader's
-position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
-Sensor params: :class:`jaxnav.models.hf_rfid.HFReaderParams`; observations:
-:func:`jaxnav.models.hf_rfid.landmark_observations` of the detections. Its landmark update and
-initialisation are in closed form (:func:`_footprint_update`); its landmark covariances do not depend on
-the pose, so FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``)."""
-
-OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
 
 
 @dataclass(frozen=True)

@@ -142,7 +142,7 @@ def test_no_correction_before_the_first_unique_id(layout, setup):
 
     key = jax.random.PRNGKey(8)
     state = blind = ir_mcl.init(jax.random.PRNGKey(9), config, params, area)
-    nothing = ir_receiver.IRDetection(jnp.zeros(2, jnp.int32), jnp.zeros(2, bool), jnp.zeros(2), jnp.zeros((2, 9)))
+    nothing = ir.IRDetection(jnp.zeros(2, jnp.int32), jnp.zeros(2, bool), jnp.zeros(2), jnp.zeros((2, 9)))
     for t in range(t0 + 1):
         det = jax.tree.map(lambda a: a[t], sim.detections)
         before = state
@@ -266,6 +266,6 @@ def test_bad_input_is_refused(setup, make, match):
     small = ir_mcl.IRMCLConfig(num_particles=50)
     sparams = ir_mcl.default_params(small, params.layout)
     state = ir_mcl.init(jax.random.PRNGKey(0), small, sparams, area)
-    det = ir_receiver.IRDetection(jnp.zeros(2, jnp.int32), jnp.zeros(2, bool), jnp.zeros(2), jnp.zeros((2, 9)))
+    det = ir.IRDetection(jnp.zeros(2, jnp.int32), jnp.zeros(2, bool), jnp.zeros(2), jnp.zeros((2, 9)))
     with pytest.raises(ValueError, match=match):
         make(small, sparams, state, det)

@@ -7,7 +7,7 @@ side of the robot top, Fig. 5.4) and localises against ceiling emitters of
 known positions (:class:`jaxnav.models.ir.EmitterLayout`): unique-ID LED
 arrays and repeated-ID single LEDs ([W] §5.1). A receiver window yields at
 most one emitter ID and the level ``V`` (V) read for it
-(:class:`jaxnav.sim.ir_receiver.IRDetection`).
+(:class:`jaxnav.models.ir.IRDetection`).
 
 [W] Alg. 3, with where each line lives here:
 
@@ -136,9 +136,9 @@ from jaxnav.core.validation import (
     is_concrete,
 )
 from jaxnav.models import ir
+from jaxnav.models.ir import IRDetection
 from jaxnav.models.motion import MODELS, OdometryNoise, OmniNoise, VelocityNoise, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
-from jaxnav.sim.ir_receiver import IRDetection
 
 __all__ = [
     "IRMCLConfig",
@@ -392,7 +392,7 @@ def _validate_inputs(config: IRMCLConfig, params: IRMCLParams, controls: Any, de
     check_finite(cname, controls)
     dname = "detections" if time_axis else "detection"
     if not isinstance(det, IRDetection):
-        raise ValueError(f"{dname} must be an IRDetection (jaxnav.sim.ir_receiver), got {type(det).__name__}")
+        raise ValueError(f"{dname} must be an IRDetection (jaxnav.models.ir), got {type(det).__name__}")
     r = int(np.shape(params.offsets)[0])
     t = (np.shape(controls)[0],) if time_axis else ()
     for name in ("mask", "valid", "voltage"):
@@ -612,7 +612,7 @@ def step(
         config, params: as everywhere.
         control: ``[control_dim]`` odometry of the configured motion model
             (``omni_body``: ``(v_x, v_y, ω, Δt)``, robot frame, m/s, rad/s, s).
-        detection: one window's :class:`~jaxnav.sim.ir_receiver.IRDetection`
+        detection: one window's :class:`~jaxnav.models.ir.IRDetection`
             with ``mask``, ``valid``, ``voltage`` of shape ``[R]``
             (``amplitude`` is not used).
 
@@ -644,7 +644,7 @@ def run(
 
     Args:
         controls: ``[T, control_dim]`` odometry.
-        detections: :class:`~jaxnav.sim.ir_receiver.IRDetection` with leading
+        detections: :class:`~jaxnav.models.ir.IRDetection` with leading
             axis ``T`` (e.g. ``ir_world.simulate(...).detections``).
         initial_state: from :func:`init`.
 

@@ -119,6 +119,7 @@ from jaxnav.core.optim import lbfgs_minimize
 from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
 
 __all__ = [
+    "IRDetection",
     "FREQUENCIES_HZ",
     "CODES",
     "NUM_CODES",
@@ -351,6 +352,27 @@ def harmonic_collisions(
                     out.append((float(f), h, float(g)))
             h += 1
     return out
+
+
+# --------------------------------------------------------------------------------------
+# Observations
+# --------------------------------------------------------------------------------------
+
+
+class IRDetection(NamedTuple):
+    """One window's decoding, per receiver ``R``.
+
+    Attributes:
+        mask: ``[R]`` int32 ID bitmask of the detected emitter (0 when invalid).
+        valid: ``[R]`` bool, True for a clean detection (the rules of :mod:`jaxnav.sim.ir_receiver`).
+        voltage: ``[R]`` float32 level V (V) of the detected emitter (0 when invalid).
+        amplitude: ``[R, 9]`` float32 on-amplitude estimate â per code (V).
+    """
+
+    mask: jax.Array
+    valid: jax.Array
+    voltage: jax.Array
+    amplitude: jax.Array
 
 
 # --------------------------------------------------------------------------------------

@@ -139,11 +139,11 @@ from jaxnav.core.validation import (
     is_concrete,
 )
 from jaxnav.models import ir
+from jaxnav.models.ir import IRDetection
 
 __all__ = [
     "ReceiverConfig",
     "ReceiverParams",
-    "IRDetection",
     "DEFAULT_CONFIG",
     "default_params",
     "validate_params",
@@ -345,22 +345,6 @@ def _check_layout(layout: ir.EmitterLayout) -> None:
         ir.validate_layout(layout)
     else:
         check_shape("layout.positions", layout.positions, (None, 2))
-
-
-class IRDetection(NamedTuple):
-    """One window's decoding, per receiver ``R``.
-
-    Attributes:
-        mask: ``[R]`` int32 ID bitmask of the detected emitter (0 when invalid).
-        valid: ``[R]`` bool, True for a clean detection (module docstring rules 1–4).
-        voltage: ``[R]`` float32 level V (V) of the detected emitter (0 when invalid).
-        amplitude: ``[R, 9]`` float32 on-amplitude estimate â per code (V).
-    """
-
-    mask: jax.Array
-    valid: jax.Array
-    voltage: jax.Array
-    amplitude: jax.Array
 
 
 # --------------------------------------------------------------------------------------

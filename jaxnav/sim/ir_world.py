@@ -111,7 +111,7 @@ class IRRun(NamedTuple):
             robot frame (m/s, m/s, rad/s, s): the ``omni_body`` control that
             moves ``true_poses[t−1]`` to ``true_poses[t]``, corrupted.
         true_controls: ``[T, 4]`` the same without corruption.
-        detections: :class:`~jaxnav.sim.ir_receiver.IRDetection` with leading
+        detections: :class:`~jaxnav.models.ir.IRDetection` with leading
             axis ``T`` (``mask``/``valid``/``voltage`` ``[T, R]``,
             ``amplitude`` ``[T, R, 9]``), read at ``true_poses[t]``.
     """
@@ -120,7 +120,7 @@ class IRRun(NamedTuple):
     true_poses: jax.Array
     controls: jax.Array
     true_controls: jax.Array
-    detections: ir_receiver.IRDetection
+    detections: ir.IRDetection
 
 
 EXPERIMENT_WAYPOINTS = np.array(

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav import metrics
 from jaxnav.io import mrclam
 from jaxnav.models import landmarks as lm
 
@@ -210,14 +211,14 @@ def test_trajectory_rmse():
     truth = np.array([[0.0, 0.0, np.pi - 0.1], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0]], np.float32)
     est = truth + np.array([[3.0, 4.0, 0.2], [0.0, 0.0, 0.0], [30.0, 40.0, 1.0]], np.float32)
     est[0, 2] = -np.pi + 0.1  # 0.2 rad across the wrap, not 2π − 0.2
-    err = mrclam.trajectory_rmse(est[:2], truth[:2])
+    err = metrics.trajectory_rmse(est[:2], truth[:2])
     np.testing.assert_allclose(err.position_rmse, math.sqrt(25 / 2), rtol=1e-6)
     np.testing.assert_allclose(err.heading_rmse, math.sqrt(0.04 / 2), rtol=1e-5)
-    masked = mrclam.trajectory_rmse(est, truth, mask=np.array([True, True, False]))
+    masked = metrics.trajectory_rmse(est, truth, mask=np.array([True, True, False]))
     np.testing.assert_allclose(masked.position_rmse, err.position_rmse, rtol=1e-6)
-    np.testing.assert_allclose(mrclam.position_errors(est, truth), [5.0, 0.0, 50.0], rtol=1e-6)
+    np.testing.assert_allclose(metrics.position_errors(est, truth), [5.0, 0.0, 50.0], rtol=1e-6)
     with pytest.raises(ValueError, match="truth"):
-        mrclam.trajectory_rmse(est, truth[:2])
+        metrics.trajectory_rmse(est, truth[:2])
 
 
 # ---------------------------------------------------------------------------
@@ -427,7 +428,7 @@ def test_dead_reckoning_matches_source(seq1, robot1, dr1, seconds, source):
     assert bound < 0.01
     assert np.hypot(*(dr64[:2] - ref)) <= bound + 1e-9
 
-    err32 = float(mrclam.position_errors(dr1[i], truth))
+    err32 = float(metrics.position_errors(dr1[i], truth))
     # float32: θ is rounded once per step (random walk √i · ulp(π)/2 ≈ 2e-5 rad at
     # i = 15 000) and each ω̄ once (systematic for a repeated reading: ≤ i · 2⁻²⁴ · 0.57 rad/s
     # · Δt ≈ 1e-5 rad); carried over ≤ 26 m of travel (0.086 m/s · 300 s) that is < 1 mm.

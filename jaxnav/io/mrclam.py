@@ -75,10 +75,8 @@ unknown barcode ``−1`` — so :func:`jaxnav.models.landmarks.lookup` ignores
 and counts them in a filter, and a filter that ignores ids (unknown
 correspondence) sees them as clutter.
 
-Scoring: :func:`dead_reckoning` integrates the controls with the velocity
-model's mean (a ``lax.scan``); :func:`trajectory_rmse` gives position and
-heading RMSE. Both are generic; they live here until jaxnav has a metrics
-module.
+:func:`dead_reckoning` integrates the controls with the velocity model's mean (a
+``lax.scan``); the scores (position and heading RMSE) are :mod:`jaxnav.metrics`'.
 """
 
 from __future__ import annotations
@@ -95,11 +93,6 @@ import numpy as np
 
 from jaxnav.core.validation import check_finite, check_positive_int, check_shape
 from jaxnav.io._data import ENV_VAR, find_dataset
-from jaxnav.metrics import (
-    TrajectoryError,
-    position_errors,
-    trajectory_rmse,
-)  # re-exported: scoring lives in jaxnav.metrics
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
 
@@ -112,15 +105,12 @@ __all__ = [
     "LandmarkMap",
     "MRCLAMRobot",
     "MRCLAMSequence",
-    "TrajectoryError",
     "data_dir",
     "available_robots",
     "load_robot",
     "interpolate_ground_truth",
     "to_filter_steps",
     "dead_reckoning",
-    "position_errors",
-    "trajectory_rmse",
 ]
 
 DATASET = "utias-mrclam-dataset7"

@@ -208,7 +208,7 @@ class AugmentedMCLInfo(NamedTuple):
 def _validate_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> None:
     if not isinstance(params, AugmentedMCLParams):
         raise ValueError(f"params must be an AugmentedMCLParams, got {type(params).__name__}")
-    mcl.validate_model_params(config.motion_model, params)
+    lm.validate_map_params(config.motion_model, params)
     check_shape("params.bounds", params.bounds, (4,))
     check_finite("params.bounds", params.bounds)
     if is_concrete(params.bounds):
@@ -350,7 +350,7 @@ def step(
     """
     _validate_params(config, params)
     _validate_state(config, state)
-    mcl.validate_inputs(config.motion_model, control, observation, time_axis=False)
+    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
     return _step_jit(key, state, config, params, control, observation)
 
 
@@ -389,5 +389,5 @@ def run(
     """
     _validate_params(config, params)
     _validate_state(config, initial_state)
-    mcl.validate_inputs(config.motion_model, controls, observations, time_axis=True)
+    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
     return _run_jit(key, config, params, controls, observations, initial_state)

@@ -36,12 +36,10 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxnav.core import kalman
 from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
-from jaxnav.localization.mcl import validate_model_params
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 
@@ -49,11 +47,6 @@ __all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "st
 
 STATE_ANGLE_DIMS = (2,)
 OBS_ANGLE_DIMS = (1,)
-
-
-def _check_gate(probability: float | None) -> None:
-    if probability is not None:
-        kalman.chi2_gate(probability, 2)  # raises a ValueError naming the problem
 
 
 @dataclass(frozen=True)
@@ -71,7 +64,8 @@ class EKFConfig:
 
     def __post_init__(self) -> None:
         check_choice("motion_model", self.motion_model, MODELS)
-        _check_gate(self.gate_probability)
+        if self.gate_probability is not None:
+            kalman.chi2_gate(self.gate_probability, 2)  # raises a ValueError naming the problem
 
     @property
     def gate(self) -> float | None:
@@ -79,18 +73,9 @@ class EKFConfig:
         return None if self.gate_probability is None else kalman.chi2_gate(self.gate_probability, 2)
 
 
-class KalmanParams(NamedTuple):
-    """Differentiable parameters of EKF/UKF localization.
-
-    Attributes:
-        motion: noise of the configured motion model (e.g. ``VelocityNoise``).
-        sensor: range-bearing noise ``(σ_r [m], σ_φ [rad])``.
-        landmarks: ``[M, 2]`` known landmark positions (m).
-    """
-
-    motion: Any
-    sensor: lm.RangeBearingNoise
-    landmarks: jax.Array
+KalmanParams = lm.LandmarkMapParams
+"""EKF/UKF localization's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams`
+(motion noise, range-bearing noise, landmarks ``[M, 2]`` in m), shared with MCL and the grid."""
 
 
 class KalmanState(NamedTuple):
@@ -132,7 +117,7 @@ def validate_params(config: Any, params: KalmanParams) -> None:
     """Host-side checks of :class:`KalmanParams` against ``config.motion_model``."""
     if not isinstance(params, KalmanParams):
         raise ValueError(f"params must be a KalmanParams, got {type(params).__name__}")
-    validate_model_params(config.motion_model, params)
+    lm.validate_map_params(config.motion_model, params)
 
 
 def validate_state(state: KalmanState) -> None:
@@ -145,19 +130,8 @@ def validate_state(state: KalmanState) -> None:
 
 
 def validate_inputs(config: Any, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    """Controls ``[(T,) control_dim]`` and matching observation slots."""
-    dim = get_motion_model(config.motion_model).control_dim
-    name = "controls" if time_axis else "control"
-    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite(name, controls)
-    if not isinstance(obs, lm.RangeBearingObs):
-        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
-    lm.validate_observations(obs, time_axis)
-    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
-        raise ValueError(
-            f"controls and observations must have the same number of steps, got "
-            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
-        )
+    """Controls ``[(T,) control_dim]`` and matching observation slots (:func:`jaxnav.models.landmarks.validate_steps`)."""
+    lm.validate_steps(config.motion_model, controls, obs, time_axis)
 
 
 def init(config: Any, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array) -> KalmanState:

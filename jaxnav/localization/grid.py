@@ -125,7 +125,6 @@ from jaxnav.core.validation import (
     check_shape,
     is_concrete,
 )
-from jaxnav.localization.mcl import validate_model_params
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 
@@ -202,18 +201,9 @@ class GridConfig:
         return ((x1 - x0) / self.nx, (y1 - y0) / self.ny, 2.0 * math.pi / self.ntheta)
 
 
-class GridParams(NamedTuple):
-    """Differentiable parameters.
-
-    Attributes:
-        motion: noise of the configured motion model (e.g. ``VelocityNoise``).
-        sensor: range-bearing noise ``(σ_r [m], σ_φ [rad])``.
-        landmarks: ``[M, 2]`` known landmark positions (m).
-    """
-
-    motion: Any
-    sensor: lm.RangeBearingNoise
-    landmarks: jax.Array
+GridParams = lm.LandmarkMapParams
+"""The grid filter's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams`
+(motion noise, range-bearing noise, landmarks ``[M, 2]`` in m), shared with MCL, EKF and UKF."""
 
 
 class GridState(NamedTuple):
@@ -499,7 +489,7 @@ def _validate_params(config: GridConfig, params: GridParams) -> None:
         raise ValueError(f"config must be a GridConfig, got {type(config).__name__}")
     if not isinstance(params, GridParams):
         raise ValueError(f"params must be a GridParams, got {type(params).__name__}")
-    validate_model_params(config.motion_model, params)
+    lm.validate_map_params(config.motion_model, params)
 
 
 def _validate_state(config: GridConfig, state: GridState) -> None:
@@ -511,18 +501,7 @@ def _validate_state(config: GridConfig, state: GridState) -> None:
 
 
 def _validate_inputs(config: GridConfig, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    dim = get_motion_model(config.motion_model).control_dim
-    name = "controls" if time_axis else "control"
-    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite(name, controls)
-    if not isinstance(obs, lm.RangeBearingObs):
-        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
-    lm.validate_observations(obs, time_axis)
-    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
-        raise ValueError(
-            f"controls and observations must have the same number of steps, got "
-            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
-        )
+    lm.validate_steps(config.motion_model, controls, obs, time_axis)
 
 
 def _float_dtype(*xs: Any) -> Any:

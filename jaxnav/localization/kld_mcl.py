@@ -278,7 +278,7 @@ def _choose_count(k_prefix: jax.Array, config: KLDMCLConfig, dtype) -> jax.Array
 def _validate_params(config: KLDMCLConfig, params: MCLParams) -> None:
     if not isinstance(params, MCLParams):
         raise ValueError(f"params must be an MCLParams (KLDMCLParams), got {type(params).__name__}")
-    mcl.validate_model_params(config.motion_model, params)
+    lm.validate_map_params(config.motion_model, params)
 
 
 def _validate_state(config: KLDMCLConfig, state: KLDMCLState) -> None:
@@ -406,7 +406,7 @@ def step(
     """
     _validate_params(config, params)
     _validate_state(config, state)
-    mcl.validate_inputs(config.motion_model, control, observation, time_axis=False)
+    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
     return _step_jit(key, state, config, params, control, observation)
 
 
@@ -445,5 +445,5 @@ def run(
     """
     _validate_params(config, params)
     _validate_state(config, initial_state)
-    mcl.validate_inputs(config.motion_model, controls, observations, time_axis=True)
+    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
     return _run_jit(key, config, params, controls, observations, initial_state)

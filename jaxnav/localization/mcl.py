@@ -56,7 +56,6 @@ from jaxnav.core.validation import (
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
-from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = ["MCLConfig", "MCLParams", "MCLState", "MCLInfo", "init", "init_uniform", "step", "run"]
 
@@ -90,18 +89,9 @@ class MCLConfig:
         check_fraction("ess_threshold", self.ess_threshold)
 
 
-class MCLParams(NamedTuple):
-    """Differentiable parameters.
-
-    Attributes:
-        motion: noise of the configured motion model (e.g. ``VelocityNoise``).
-        sensor: range-bearing noise ``(σ_r [m], σ_φ [rad])``.
-        landmarks: ``[M, 2]`` known landmark positions (m).
-    """
-
-    motion: Any
-    sensor: lm.RangeBearingNoise
-    landmarks: jax.Array
+MCLParams = lm.LandmarkMapParams
+"""MCL's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams` (motion noise,
+range-bearing noise, landmarks ``[M, 2]`` in m), shared with the grid, EKF and UKF filters."""
 
 
 class MCLState(NamedTuple):
@@ -143,21 +133,7 @@ class MCLInfo(NamedTuple):
 def _validate_params(config: MCLConfig, params: MCLParams) -> None:
     if not isinstance(params, MCLParams):
         raise ValueError(f"params must be an MCLParams, got {type(params).__name__}")
-    validate_model_params(config.motion_model, params)
-
-
-def validate_model_params(motion_model: str, params: Any) -> None:
-    """Host-side check of the fields ``motion``, ``sensor`` and ``landmarks`` of ``params``.
-
-    Shared by the MCL variants (augmented, KLD), whose params carry these
-    three fields plus their own.
-    """
-    validate_motion_noise(motion_model, params.motion)
-    lm.validate_noise(params.sensor)
-    check_shape("params.landmarks", params.landmarks, (None, 2))
-    if np.shape(params.landmarks)[0] < 1:
-        raise ValueError("params.landmarks must hold at least one landmark")
-    check_finite("params.landmarks", params.landmarks)
+    lm.validate_map_params(config.motion_model, params)
 
 
 def _validate_state(config: MCLConfig, state: MCLState) -> None:
@@ -166,22 +142,7 @@ def _validate_state(config: MCLConfig, state: MCLState) -> None:
 
 
 def _validate_inputs(config: MCLConfig, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    validate_inputs(config.motion_model, controls, obs, time_axis)
-
-
-def validate_inputs(motion_model: str, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    """Host-side check of one step's (or, with ``time_axis``, a sequence's) controls and observations."""
-    dim = get_motion_model(motion_model).control_dim
-    check_shape("controls" if time_axis else "control", controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite("controls" if time_axis else "control", controls)
-    if not isinstance(obs, lm.RangeBearingObs):
-        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
-    lm.validate_observations(obs, time_axis)
-    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
-        raise ValueError(
-            f"controls and observations must have the same number of steps, got "
-            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
-        )
+    lm.validate_steps(config.motion_model, controls, obs, time_axis)
 
 
 # ---------------------------------------------------------------------------

@@ -58,7 +58,8 @@ class UKFConfig:
 
     def __post_init__(self) -> None:
         check_choice("motion_model", self.motion_model, MODELS)
-        ekf._check_gate(self.gate_probability)
+        if self.gate_probability is not None:
+            kalman.chi2_gate(self.gate_probability, 2)  # raises a ValueError naming the problem
         if not self.alpha > 0:
             raise ValueError(f"alpha must be > 0, got {self.alpha}")
         kalman.sigma_weights(3, self.alpha, self.beta, self.kappa)  # raises if n + λ ≤ 0
@@ -96,7 +97,7 @@ def step(
     """One UKF localization step; validated on the host, then jitted."""
     ekf.validate_params(config, params)
     ekf.validate_state(state)
-    ekf.validate_inputs(config, control, observation, time_axis=False)
+    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
     return _step_jit(state, config, params, control, observation)
 
 
@@ -115,5 +116,5 @@ def run(
     """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``."""
     ekf.validate_params(config, params)
     ekf.validate_state(initial_state)
-    ekf.validate_inputs(config, controls, observations, time_axis=True)
+    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
     return _run_jit(config, params, controls, observations, initial_state)

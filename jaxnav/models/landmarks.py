@@ -20,14 +20,16 @@ is outside the map, contributes nothing (log-likelihood 0) and is counted by
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import check_positive, check_shape
+from jaxnav.core.validation import check_finite, check_positive, check_shape
 from jaxnav.core.weights import wrap_angle
+from jaxnav.models import motion
 
 __all__ = [
     "RangeBearingNoise",
@@ -38,6 +40,9 @@ __all__ = [
     "log_likelihood",
     "validate_noise",
     "validate_observations",
+    "LandmarkMapParams",
+    "validate_map_params",
+    "validate_steps",
 ]
 
 
@@ -163,4 +168,49 @@ def validate_observations(obs: RangeBearingObs, time_axis: bool) -> None:
         raise ValueError(
             "observations.ids, .mask and .z must agree in their leading shape, got "
             f"{jnp.shape(obs.ids)}, {jnp.shape(obs.mask)}, {jnp.shape(obs.z)}"
+        )
+
+
+# --------------------------------------------------------------------------- a filter on a known map
+
+
+class LandmarkMapParams(NamedTuple):
+    """Differentiable parameters of a filter on a known landmark map (MCL and its variants, grid, EKF, UKF).
+
+    Attributes:
+        motion: noise of the configured motion model (e.g. ``VelocityNoise``).
+        sensor: range-bearing noise ``(σ_r [m], σ_φ [rad])``.
+        landmarks: ``[M, 2]`` known landmark positions (m).
+    """
+
+    motion: Any
+    sensor: RangeBearingNoise
+    landmarks: jax.Array
+
+
+def validate_map_params(motion_model: str, params: Any) -> None:
+    """Host-side check of the fields ``motion``, ``sensor`` and ``landmarks`` of ``params``: noise of
+    ``motion_model``, a range-bearing noise, and at least one finite landmark ``[M, 2]`` (m)."""
+    motion.validate_noise(motion_model, params.motion)
+    validate_noise(params.sensor)
+    check_shape("params.landmarks", params.landmarks, (None, 2))
+    if np.shape(params.landmarks)[0] < 1:
+        raise ValueError("params.landmarks must hold at least one landmark")
+    check_finite("params.landmarks", params.landmarks)
+
+
+def validate_steps(motion_model: str, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:
+    """Host-side check of one step's control and observations (``time_axis``: a sequence's, ``[T, ...]``):
+    controls of ``motion_model``'s dimension, finite, and range-bearing observation slots of as many steps."""
+    dim = motion.get_motion_model(motion_model).control_dim
+    name = "controls" if time_axis else "control"
+    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
+    check_finite(name, controls)
+    if not isinstance(obs, RangeBearingObs):
+        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
+    validate_observations(obs, time_axis)
+    if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
+        raise ValueError(
+            f"controls and observations must have the same number of steps, got "
+            f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
         )

@@ -100,7 +100,6 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.core.weights import wrap_angle
-from jaxnav.localization.ekf import validate_inputs
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
@@ -460,7 +459,7 @@ def step(
     """One EKF-SLAM step ([A] Alg. 4); validated on the host, then jitted."""
     validate_params(config, params)
     validate_state(config, state)
-    validate_inputs(config, control, observation, time_axis=False)
+    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
     return _step_jit(state, config, params, control, observation)
 
 
@@ -479,5 +478,5 @@ def run(
     """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``, ``trace.landmarks`` ``[T, M, 2]``."""
     validate_params(config, params)
     validate_state(config, initial_state)
-    validate_inputs(config, controls, observations, time_axis=True)
+    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
     return _run_jit(config, params, controls, observations, initial_state)

@@ -1,4 +1,4 @@
-"""Break jaxnav's W2 step (``mcl._step``) into its parts and time each part.
+"""Break jaxnav's W2 step (``mcl.kernel``) into its parts and time each part.
 
 ``python -m benchmarks.profile_w2 [--sizes 1000,1000000] [--repeats K] [--out FILE]``
 
@@ -10,7 +10,7 @@ Every part is its own small jitted function of the W2 inputs, timed two ways:
   ``xs`` carry a fresh key and a perturbed input per iteration (so XLA cannot
   hoist the work out of the loop), time / S.
 
-Parts (in the order of ``mcl._step``):
+Parts (in the order of ``mcl.kernel``):
 
 ``motion``       ``velocity_sample`` (arc motion + pose noise)
 ``likelihood``   ``landmarks.lookup`` + ``landmarks.log_likelihood`` (8 landmarks)
@@ -21,7 +21,7 @@ Parts (in the order of ``mcl._step``):
                  ``lax.cond``, ``systematic`` + gather)
 ``systematic``   ``resampling.systematic`` alone (indices only)
 ``gather``       ``jnp.take(particles, idx, axis=0)`` alone
-``step``         the whole ``mcl._step``
+``step``         the whole ``mcl.kernel``
 
 and, to explain ``motion``:
 
@@ -79,7 +79,7 @@ def _parts(n: int):
         "resample": lambda k, x, lw, idx: resampling.conditional_resample(k, x, lw, 1.0, "systematic").particles,
         "systematic": lambda k, x, lw, idx: resampling.systematic(k, lw, n),
         "gather": lambda k, x, lw, idx: jnp.take(x, idx, axis=0),
-        "step": lambda k, x, lw, idx: mcl._step(k, mcl.MCLState(x, lw), config, params, ctrl, obs)[0].particles,
+        "step": lambda k, x, lw, idx: mcl.kernel(k, mcl.MCLState(x, lw), config, params, ctrl, obs)[0].particles,
         "normal_threefry": lambda k, x, lw, idx: jax.random.normal(k, x.shape, x.dtype),
         "normal_rbg": lambda k, x, lw, idx: jax.random.normal(
             jax.random.key(jax.random.bits(k, (), jnp.uint32), impl="rbg"), x.shape, x.dtype

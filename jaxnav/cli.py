@@ -148,7 +148,7 @@ def _cmd_ir(args: argparse.Namespace) -> int:
     import jax
     import numpy as np
 
-    from jaxnav.experiments import ir_positioning as xp
+    from jaxnav.experiments.ir import positioning as xp
 
     try:
         setting = xp.IRSetting(
@@ -186,7 +186,7 @@ def _cmd_ir(args: argparse.Namespace) -> int:
 
 
 def _cmd_uhf_real(args: argparse.Namespace) -> int:
-    from jaxnav.experiments import uhf_real as xp
+    from jaxnav.experiments.uhf import real as xp
     from jaxnav.io import adarf
 
     weightings = tuple(w for w in args.weightings.split(",") if w)
@@ -222,10 +222,8 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     from jaxnav.experiments import registry
 
     if args.action == "list":
-        from jaxnav.experiments import _all  # noqa: F401
-
-        for name in sorted(registry.EXPERIMENTS):
-            print(f"{name:<12} {registry.EXPERIMENTS[name].title}")
+        for name in registry.names():
+            print(f"{name:<12} {registry.get(name).title}")
         return 0
     if not args.name:
         print("jaxnav experiments run: name an experiment (see 'jaxnav experiments list')", file=sys.stderr)

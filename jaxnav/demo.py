@@ -20,6 +20,7 @@ from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
 
 __all__ = ["DemoResult", "demo_setting", "run_demo", "plot_demo"]
 
@@ -58,11 +59,11 @@ def run_demo(seed: int = 0, num_steps: int = 120, num_particles: int = 1000) -> 
     config, params = demo_setting(num_particles)
     key = jax.random.PRNGKey(seed)
     k_sim, k_init, k_run = jax.random.split(key, 3)
-    controls = world.loop_controls(num_steps, speed=0.5, turn_rate=0.21, dt=0.25)
+    controls = trajectories.loop_controls(num_steps, speed=0.5, turn_rate=0.21, dt=0.25)
     sim = world.simulate(k_sim, params.landmarks, jnp.asarray(START), controls, params.motion, params.sensor)
     guess = jnp.asarray(START) + jnp.asarray(PRIOR_OFFSET)
     state = mcl.init(k_init, config, params, guess, jnp.asarray(PRIOR_SD))
-    _, trace = mcl.run(k_run, config, params, sim.controls, sim.observations, state)
+    _, trace = mcl.run(k_run, state, config, params, sim.controls, sim.observations)
     true_poses = np.asarray(sim.true_poses)
     est = np.asarray(trace.estimate)
     err = np.linalg.norm(est[:, :2] - true_poses[:, :2], axis=1)

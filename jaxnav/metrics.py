@@ -118,7 +118,11 @@ def align_rigid(source: jax.Array, target: jax.Array, mask: jax.Array | None = N
 
 
 def map_errors(estimate: jax.Array, truth: jax.Array, mask: jax.Array | None = None) -> MapError:
-    """Raw and rigidly aligned landmark RMSE of ``estimate [M, 2]`` against ``truth [M, 2]`` (m)."""
+    """Raw and rigidly aligned landmark RMSE of ``estimate [M, 2]`` against ``truth [M, 2]`` (m).
+
+    Only the landmarks where ``mask`` is true are scored; with none, there is nothing to score and
+    both errors are NaN (never 0).
+    """
     check_shape("estimate", estimate, (None, 2))
     check_shape("truth", truth, np.shape(estimate))
     estimate, truth = jnp.asarray(estimate), jnp.asarray(truth)
@@ -128,7 +132,8 @@ def map_errors(estimate: jax.Array, truth: jax.Array, mask: jax.Array | None = N
     aligned = estimate @ rot.T + trans
     raw = jnp.sqrt(jnp.sum(w * jnp.sum((estimate - truth) ** 2, axis=-1)) / n)
     al = jnp.sqrt(jnp.sum(w * jnp.sum((aligned - truth) ** 2, axis=-1)) / n)
-    return MapError(raw, al, rot, trans)
+    scored = jnp.sum(w) > 0
+    return MapError(jnp.where(scored, raw, jnp.nan), jnp.where(scored, al, jnp.nan), rot, trans)
 
 
 def absolute_trajectory_error(estimates: jax.Array, truth: jax.Array) -> jax.Array:

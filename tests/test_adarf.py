@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxnav.experiments import uhf_real
+from jaxnav.experiments.uhf import real as uhf_real
 from jaxnav.io import adarf
 from jaxnav.models import uhf_rfid as U
 

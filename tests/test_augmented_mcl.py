@@ -14,6 +14,7 @@ from jaxnav.localization import augmented_mcl as am
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
 
 START = jnp.asarray([5.0, 1.5, 0.0])
 BOUNDS = jnp.asarray([0.0, 10.0, 0.0, 10.0])
@@ -44,7 +45,7 @@ def _kidnap_run(seed):
     """
     _, p = demo_setting(10)
     k1, k2 = jax.random.split(jax.random.PRNGKey(seed))
-    controls = world.loop_controls(T_KIDNAP + T_AFTER, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(T_KIDNAP + T_AFTER, 0.5, 0.21, 0.25)
     before = world.simulate(k1, p.landmarks, START, controls, p.motion, p.sensor)
     kidnapped = before.true_poses[T_KIDNAP - 1] + SHIFT
     after = world.simulate(k2, p.landmarks, kidnapped, controls, p.motion, p.sensor)
@@ -65,11 +66,11 @@ def _runs(seed):
     k_init, k_run = jax.random.split(jax.random.PRNGKey(100 + seed))
     sd = jnp.asarray([0.3, 0.3, 0.1])
     state = am.init(k_init, config, params, START, sd)
-    final, trace = am.run(k_run, config, params, controls, obs, state)
+    final, trace = am.run(k_run, state, config, params, controls, obs)
     mcl_config = mcl.MCLConfig(num_particles=1000)
     mcl_params = mcl.MCLParams(p.motion, FILTER_SENSOR, p.landmarks)
     mcl_state = mcl.init(k_init, mcl_config, mcl_params, START, sd)
-    _, mtrace = mcl.run(k_run, mcl_config, mcl_params, controls, obs, mcl_state)
+    _, mtrace = mcl.run(k_run, mcl_state, mcl_config, mcl_params, controls, obs)
     return dict(
         config=config,
         params=params,
@@ -220,31 +221,22 @@ def test_degenerate_step_is_flagged_raises_injection_and_never_nan():
         assert np.all(np.isfinite(np.asarray(leaf)))
 
 
-def test_no_retrace_between_calls_with_the_same_shapes(monkeypatch):
+def test_no_retrace_between_calls_with_the_same_shapes():
     """``run`` traces the step exactly once per (config, shapes); new data, keys and params reuse it."""
-    traces = []
-    original = am._step
-
-    def counting_step(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(am, "_step", counting_step)
+    before = am.run.trace_count()
     r0, r1 = _runs(0), _runs(1)
     config, params = _params(41)[:2]  # a config no other test compiled
     cut = lambda x: x[:5]  # noqa: E731
     state = am.init(jax.random.PRNGKey(0), config, params, START, jnp.full((3,), 0.1))
-    am.run(jax.random.PRNGKey(0), config, params, r0["controls"][:5], jax.tree_util.tree_map(cut, r0["obs"]), state)
-    assert len(traces) == 1  # scan traces its body once
-    cache = am._run_jit._cache_size()
+    am.run(jax.random.PRNGKey(0), state, config, params, r0["controls"][:5], jax.tree_util.tree_map(cut, r0["obs"]))
+    assert am.run.trace_count() == before + 1  # scan traces its body once
     params2 = params._replace(
         bounds=jnp.asarray([1.0, 9.0, 1.0, 9.0]), sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1]))
     )
     state2 = state._replace(log_w_slow=jnp.float32(3.0), log_w_fast=jnp.float32(2.0))  # strong float32, as init gives
     obs2 = jax.tree_util.tree_map(lambda x: x[5:10], r1["obs"])
-    am.run(jax.random.PRNGKey(1), config, params2, r1["controls"][5:10], obs2, state2)
-    assert len(traces) == 1
-    assert am._run_jit._cache_size() == cache
+    am.run(jax.random.PRNGKey(1), state2, config, params2, r1["controls"][5:10], obs2)
+    assert am.run.trace_count() == before + 1
 
 
 def test_init_uniform_uses_params_bounds_by_default():
@@ -291,20 +283,20 @@ def test_bad_params_and_state_are_refused_with_the_argument_named():
     key = jax.random.PRNGKey(0)
     state = am.init(key, config, params, START)
     with pytest.raises(ValueError, match="x_min < x_max"):
-        am.run(key, config, params._replace(bounds=jnp.asarray([1.0, 0.0, 0.0, 1.0])), controls, obs, state)
+        am.run(key, state, config, params._replace(bounds=jnp.asarray([1.0, 0.0, 0.0, 1.0])), controls, obs)
     with pytest.raises(ValueError, match=r"params.bounds must have shape \(4\)"):
-        am.run(key, config, params._replace(bounds=jnp.zeros(3)), controls, obs, state)
+        am.run(key, state, config, params._replace(bounds=jnp.zeros(3)), controls, obs)
     with pytest.raises(ValueError, match="params.bounds contains NaN"):
         am.init_uniform(key, config, params._replace(bounds=jnp.asarray([0.0, jnp.nan, 0.0, 1.0])))
     with pytest.raises(ValueError, match="params must be an AugmentedMCLParams"):
-        am.run(key, config, mcl.MCLParams(params.motion, params.sensor, params.landmarks), controls, obs, state)
+        am.run(key, state, config, mcl.MCLParams(params.motion, params.sensor, params.landmarks), controls, obs)
     with pytest.raises(ValueError, match=r"state.log_w_slow must have shape \(\)"):
-        am.run(key, config, params, controls, obs, state._replace(log_w_slow=jnp.zeros(2)))
+        am.run(key, state._replace(log_w_slow=jnp.zeros(2)), config, params, controls, obs)
     with pytest.raises(ValueError, match=r"state.particles must have shape \(50, 3\)"):
-        am.run(key, config, params, controls, obs, state._replace(particles=state.particles[:3]))
+        am.run(key, state._replace(particles=state.particles[:3]), config, params, controls, obs)
     with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
         am.run(
-            key, config, params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), controls, obs, state
+            key, state, config, params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), controls, obs
         )
     with pytest.raises(ValueError, match="same number of steps"):
-        am.run(key, config, params, controls[:2], obs, state)
+        am.run(key, state, config, params, controls[:2], obs)

@@ -34,7 +34,7 @@ ground (where both must give −inf).
   resampling decision, log-likelihood increment, particles and log-weights,
   to 1e-9 relative; once from the broad prior cloud (ESS < 0.1 M:
   resampling and refresh) and once from a cloud 1 mm around the tag (no
-  resampling). The step is ``rfid_tag._step_jit`` (the jitted body of
+  resampling). The step is ``rfid_tag.step.jitted`` (the jitted body of
   ``rfid_tag.step``) because the public ``step`` casts the reads to float32
   even under x64, which would put float32 rounding (~5e-8) into the float64
   comparison.
@@ -172,8 +172,8 @@ def test_step_matches_jaxnav_step_float64(case, cloud, expect_resample):
     with jax.enable_x64(True):
         cfg = rt.RFIDTagConfig(num_particles=n, weighting="combined", ess_threshold=0.1)
         state = rt.RFIDTagState(jnp.asarray(p, jnp.float64), jnp.asarray(lw, jnp.float64))
-        # rt._step_jit, not rt.step: the public step casts the reads to float32 (even under x64)
-        new, info = rt._step_jit(key, state, cfg, _params64(params), _as_uhf(reads, jnp.float64))
+        # rt.step.jitted, not rt.step: the public step casts the reads to float32 (even under x64)
+        new, info = rt.step.jitted(key, state, cfg, _params64(params), _as_uhf(reads, jnp.float64))
         eps = np.asarray(jax.random.normal(key, (n, 4), jnp.float64)).T  # the refresh's draws
     pf = nu.NumpyRFIDTag(p, nu.model_from_params(params), lw, ess_threshold=0.1, dtype=np.float64)
     out = pf.step(reads, normals=eps)

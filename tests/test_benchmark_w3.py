@@ -7,15 +7,15 @@ control and observations, and the same resampling uniform, the NumPy peer
 covariances, log-weights, log-likelihood increment and ESS. The motion noise
 is switched off (sd 0) so that the motion is deterministic and the two
 implementations' random streams do not matter; the resampling uniform of
-jaxnav is recomputed from its key (the split chain of ``fastslam._step`` and
+jaxnav is recomputed from its key (the split chain of ``fastslam.kernel`` and
 ``resampling.conditional_resample``). The small case has M = 40 particles,
 N = 12 landmarks, different maps in every particle (means and SPD
 covariances drawn per particle), non-uniform prior log-weights and K = 5
 slots with one landmark observed twice (applied in turn by both). The
-prototype of the workload (component-vector landmark EKF, in-place
-resampling copy) must return jaxnav's state: the same ancestors and poses,
-the landmark posteriors to float32 round-off (float64: to rounding level).
-No timing is asserted.
+in-place resampling copy of the maps
+(:func:`jaxnav.core.resampling.copy_ancestors_in_place`, what
+``fastslam.step`` uses for W3's large maps) must equal the gather for sorted
+ancestors. No timing is asserted.
 
 Tolerances:
 
@@ -50,7 +50,7 @@ import pytest
 
 from benchmarks.peers.numpy_fastslam import NumpyFastSLAM
 from benchmarks.workloads import w3_fastslam as w3
-from jaxnav.models import observation
+from jaxnav.core import resampling
 from jaxnav.models.landmarks import RangeBearingNoise, RangeBearingObs
 from jaxnav.models.motion import VelocityNoise
 from jaxnav.slam import fastslam as fs
@@ -108,7 +108,7 @@ def _peer(dtype, sensor_sd=SENSOR_SD):
 
 def _jaxnav_uniform(key, dtype):
     """The systematic-resampling uniform jaxnav draws inside ``fastslam.step(key, ...)``."""
-    _, k_resample = jax.random.split(key)  # fastslam._step
+    _, k_resample = jax.random.split(key)  # fastslam.kernel
     k_res, _ = jax.random.split(k_resample)  # resampling.conditional_resample
     return int(jax.random.bits(k_res, (), jnp.uint32)) / 2.0**32  # the systematic uniform u = U/2³² (resampling)
 
@@ -193,7 +193,7 @@ def test_inplace_ancestor_copy_equals_gather(case):
     rng = np.random.default_rng(4)
     a = rng.standard_normal((m, 7, 2)).astype(np.float32)
     b = rng.standard_normal((m, 7, 2, 2)).astype(np.float32)
-    out = jax.jit(w3.inplace_ancestor_copy)((jnp.asarray(a), jnp.asarray(b)), jnp.asarray(idx))
+    out = jax.jit(resampling.copy_ancestors_in_place)((jnp.asarray(a), jnp.asarray(b)), jnp.asarray(idx))
     np.testing.assert_array_equal(np.asarray(out[0]), a[idx])
     np.testing.assert_array_equal(np.asarray(out[1]), b[idx])
 
@@ -202,52 +202,8 @@ def test_inplace_ancestor_copy_needs_sorted_ancestors():
     """Negative control: a swap (unsorted, outside the contract) is not reproduced, so the test above can fail."""
     a = jnp.arange(6.0).reshape(3, 2)
     idx = jnp.asarray([1, 0, 2], jnp.int32)
-    (out,) = w3.inplace_ancestor_copy((a,), idx)
+    (out,) = resampling.copy_ancestors_in_place((a,), idx)
     assert not np.array_equal(np.asarray(out), np.asarray(a)[np.asarray(idx)])
-
-
-def test_prototype_step_equals_jaxnav_step():
-    """The prototype (component-vector EKF, in-place map copy) returns jaxnav's state over 4 steps of W3 data.
-
-    N = 1000 so that the in-place copy is the path exercised; the EKF's
-    arithmetic is reassociated, so float32 agreement is to the tolerances of
-    the float32 peer test; the resampling picks the same ancestors.
-    """
-    m, n = 32, 1000
-    assert n * 6 >= w3.INPLACE_MIN_FLOATS  # the in-place path is the one exercised
-    state0 = w3.initial_state(m, n)
-    config, params = w3.config_params(m, n)
-    _, keys, ctrls, obs = w3._step_inputs(n)
-    a, b = w3._fresh(state0), w3._fresh(state0)
-    for t in range(4):
-        a, ia = fs.step(keys[t], a, config, params, ctrls[t], obs[t])
-        b, ib = w3.prototype_step_checked(keys[t], b, config, params, ctrls[t], obs[t])
-        np.testing.assert_allclose(np.asarray(ia.log_likelihood), np.asarray(ib.log_likelihood), rtol=0, atol=2e-4)
-        np.testing.assert_allclose(np.asarray(ia.ess), np.asarray(ib.ess), rtol=1e-4)
-    assert len(np.unique(np.asarray(a.poses[:, 0]))) < m  # resampling duplicated particles
-    np.testing.assert_array_equal(np.asarray(a.poses), np.asarray(b.poses))  # same ancestors, same motion
-    np.testing.assert_array_equal(np.asarray(a.log_weights), np.asarray(b.log_weights))
-    np.testing.assert_array_equal(np.asarray(a.seen), np.asarray(b.seen))
-    np.testing.assert_allclose(np.asarray(a.means), np.asarray(b.means), rtol=0, atol=1e-5)
-    covs = np.asarray(a.covs)
-    np.testing.assert_allclose(covs, np.asarray(b.covs), rtol=0, atol=1e-5 * np.abs(covs).max())
-
-
-def test_prototype_landmark_ekf_matches_kalman_float64():
-    """The component-vector EKF equals vmap(fastslam._landmark_ekf) at rounding level (float64, random case)."""
-    with jax.enable_x64(True):
-        poses, _, means, covs, z = (jnp.asarray(x) for x in _case(np.float64))
-        r = jnp.diag(jnp.asarray(SENSOR_SD, jnp.float64) ** 2)
-        j = 5
-        ref = jax.vmap(lambda p, mu, c: fs._landmark_ekf(observation.RANGE_BEARING, r, p, mu, c, z[0]))(
-            poses, means[:, j], covs[:, j]
-        )
-        mu, cov, ll = w3.prototype_landmark_ekf(observation.RANGE_BEARING, r, poses, means[:, j], covs[:, j], z[0])
-        np.testing.assert_allclose(np.asarray(mu), np.asarray(ref.mean), rtol=0, atol=1e-9)
-        np.testing.assert_allclose(
-            np.asarray(cov), np.asarray(ref.cov), rtol=0, atol=1e-9 * float(jnp.abs(ref.cov).max())
-        )
-        np.testing.assert_allclose(np.asarray(ll), np.asarray(ref.log_likelihood), rtol=0, atol=1e-9)
 
 
 def test_workload_data_and_floor():

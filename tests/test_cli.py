@@ -57,7 +57,7 @@ def test_hf_slam_choices_match_the_experiment():
 
 def test_ir_choices_match_the_experiment():
     from jaxnav.cli import _IR_DRIVES, _IR_LAYOUTS
-    from jaxnav.experiments.ir_positioning import DRIVES, LAYOUTS
+    from jaxnav.experiments.ir.positioning import DRIVES, LAYOUTS
 
     assert _IR_LAYOUTS == LAYOUTS and _IR_DRIVES == DRIVES
 

@@ -20,6 +20,7 @@ from jaxnav.localization import ekf
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as lw
+from jaxnav.sim import trajectories
 from jaxnav.slam import ekf_slam
 
 M = 12
@@ -36,7 +37,7 @@ PARAMS = ekf_slam.EKFSLAMParams(MOTION, SENSOR)
 
 
 def _simulate(key):
-    u = lw.loop_controls(STEPS, speed=0.5, turn_rate=0.2, dt=0.25)
+    u = trajectories.loop_controls(STEPS, speed=0.5, turn_rate=0.2, dt=0.25)
     x0 = X0 + jax.random.normal(jax.random.fold_in(key, 1), (3,)) * jnp.sqrt(jnp.diag(P0))
     return lw.simulate(key, LANDMARKS, x0, u, MOTION, SENSOR, max_range=6.0, fov=np.pi)
 
@@ -57,9 +58,12 @@ def _run_batch(sims, params=PARAMS, state=None, observations=None):
     that ``jax.vmap(run)`` gives the same, but the batched program takes
     about 1.5× as long to compile.
     """
-    s0 = ekf_slam.init(CONFIG, params, X0, P0) if state is None else state
+    s0 = ekf_slam.init(None, CONFIG, params, X0, P0) if state is None else state
     obs = sims.observations if observations is None else observations
-    runs = [ekf_slam.run(CONFIG, params, sims.controls[r], _unstack(obs, r), s0) for r in range(sims.controls.shape[0])]
+    runs = [
+        ekf_slam.run(None, s0, CONFIG, params, sims.controls[r], _unstack(obs, r))
+        for r in range(sims.controls.shape[0])
+    ]
     return _stack(runs)
 
 
@@ -169,11 +173,11 @@ def test_known_map_reduces_to_ekf_localization(batch):
     sims, _, _ = batch
     p = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     cfg = ekf.EKFConfig()
-    s0 = ekf.init(cfg, p, X0, P0)
-    loc = _stack([ekf.run(cfg, p, sims.controls[r], _unstack(sims.observations, r), s0)[1] for r in range(RUNS)])
+    s0 = ekf.init(None, cfg, p, X0, P0)
+    loc = _stack([ekf.run(None, s0, cfg, p, sims.controls[r], _unstack(sims.observations, r))[1] for r in range(RUNS)])
 
     def gap(var, runs):
-        state = ekf_slam.init(CONFIG, PARAMS, X0, P0, LANDMARKS, var * jnp.eye(2))
+        state = ekf_slam.init(None, CONFIG, PARAMS, X0, P0, LANDMARKS, var * jnp.eye(2))
         np.testing.assert_array_equal(state.seen, True)
         tr = _run_batch(_unstack(sims, slice(0, runs)), state=state)[1]
         d = np.abs(_pose_errors(tr.estimate, loc.estimate[:runs])).max()
@@ -204,8 +208,8 @@ def test_vmap_over_runs_matches_loop_and_ignores_unknown_ids(batch):
     z = obs.z.at[..., 0, :].set(jnp.nan).at[..., 1, :].set(jnp.nan)
     mask = obs.mask.at[..., :2].set(True)
     bad = obs._replace(ids=ids, z=z, mask=mask)
-    s0 = ekf_slam.init(CONFIG, PARAMS, X0, P0)
-    final, trace = jax.vmap(lambda u, o: ekf_slam.run(CONFIG, PARAMS, u, o, s0))(sims.controls, bad)
+    s0 = ekf_slam.init(None, CONFIG, PARAMS, X0, P0)
+    final, trace = jax.vmap(lambda u, o: ekf_slam.run(None, s0, CONFIG, PARAMS, u, o))(sims.controls, bad)
     np.testing.assert_array_equal(trace.num_ignored, 2)
     assert np.all(np.isfinite(np.asarray(final.mean))) and np.all(np.isfinite(np.asarray(final.cov)))
     seen = np.asarray(final.seen)
@@ -241,6 +245,7 @@ def test_sequential_slots_match_dense_reference():
         )
         prior = jnp.asarray([[3.0, 1.0], [0.0, 4.0], [-2.0, -2.0], [5.0, 5.0]])
         s0 = ekf_slam.init(
+            None,
             cfg,
             params,
             jnp.asarray([0.2, 0.1, 0.3]),
@@ -253,7 +258,7 @@ def test_sequential_slots_match_dense_reference():
         ids = jnp.asarray([1, 2, 2, 0, 1, 7], jnp.int32)
         z = jnp.asarray([[3.9, 1.0], [2.9, -2.6], [3.0, -2.5], [7.8, -0.1], [4.0, 1.05], [np.nan, np.nan]])
         obs = lm.RangeBearingObs(ids, z, jnp.ones(6, bool))
-        state, info = ekf_slam.step(s0, cfg, params, jnp.asarray([0.0, 0.0, 0.25]), obs)
+        state, info = ekf_slam.step(None, s0, cfg, params, jnp.asarray([0.0, 0.0, 0.25]), obs)
 
         r = jnp.diag(params.sensor.sd**2)
 
@@ -301,47 +306,48 @@ def test_covariance_stays_symmetric_positive_definite(batch):
     assert np.linalg.eigvalsh(np.asarray(trace.pose_cov, np.float64)).min() > 0
     assert np.linalg.eigvalsh(np.asarray(trace.landmark_cov, np.float64)).min() > 0
     for r in range(RUNS):
-        ekf_slam.validate_state(CONFIG, jax.tree_util.tree_map(lambda x: x[r], final))
+        ekf_slam.validate_state(CONFIG, PARAMS, jax.tree_util.tree_map(lambda x: x[r], final))
 
 
 def test_run_compiles_once(batch):
     """``step`` and ``run`` share ``_step``; ``step`` itself is checked against the dense reference above."""
     sims, final, _ = batch
     run0 = _unstack(sims, 0)
-    s0 = ekf_slam.init(CONFIG, PARAMS, X0, P0)
-    again = ekf_slam.run(CONFIG, PARAMS, run0.controls, run0.observations, s0)[0]
+    s0 = ekf_slam.init(None, CONFIG, PARAMS, X0, P0)
+    again = ekf_slam.run(None, s0, CONFIG, PARAMS, run0.controls, run0.observations)[0]
     np.testing.assert_array_equal(again.mean, final.mean[0])  # deterministic: same input, same bits
 
     # new data and new parameter values with the same shapes: no retrace
-    before = ekf_slam._run_jit._cache_size()
+    before = ekf_slam.run.trace_count()
     run1 = jax.tree_util.tree_map(lambda x: x[1], sims)
     other = PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2))
-    ekf_slam.run(CONFIG, other, run1.controls, run1.observations, ekf_slam.init(CONFIG, other, X0, 2 * P0))
-    assert ekf_slam._run_jit._cache_size() == before
+    ekf_slam.run(None, ekf_slam.init(None, CONFIG, other, X0, 2 * P0), CONFIG, other, run1.controls, run1.observations)
+    assert ekf_slam.run.trace_count() == before
 
 
 def test_bad_input_is_rejected():
     with pytest.raises(ValueError, match="positive definite"):
-        ekf_slam.init(CONFIG, PARAMS, X0, jnp.asarray([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        ekf_slam.init(None, CONFIG, PARAMS, X0, jnp.asarray([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(ValueError, match="symmetric"):
-        ekf_slam.init(CONFIG, PARAMS, X0, jnp.asarray([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        ekf_slam.init(None, CONFIG, PARAMS, X0, jnp.asarray([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(ValueError, match="positive definite"):
-        ekf_slam.init(CONFIG, PARAMS, X0, P0, LANDMARKS, -jnp.eye(2))
+        ekf_slam.init(None, CONFIG, PARAMS, X0, P0, LANDMARKS, -jnp.eye(2))
     with pytest.raises(ValueError, match="landmark_cov"):
-        ekf_slam.init(CONFIG, PARAMS, X0, P0, LANDMARKS)
+        ekf_slam.init(None, CONFIG, PARAMS, X0, P0, LANDMARKS)
     with pytest.raises(ValueError, match="landmarks must have shape"):
-        ekf_slam.init(CONFIG, PARAMS, X0, P0, LANDMARKS[:3], jnp.eye(2))
+        ekf_slam.init(None, CONFIG, PARAMS, X0, P0, LANDMARKS[:3], jnp.eye(2))
     with pytest.raises(ValueError, match="VelocityNoise"):
-        ekf_slam.init(CONFIG, PARAMS._replace(motion=motion.OmniNoise(jnp.ones(3))), X0, P0)
+        ekf_slam.init(None, CONFIG, PARAMS._replace(motion=motion.OmniNoise(jnp.ones(3))), X0, P0)
     with pytest.raises(ValueError, match="num_landmarks"):
         ekf_slam.EKFSLAMConfig(num_landmarks=0)
     with pytest.raises(ValueError, match="gate probability"):
         ekf_slam.EKFSLAMConfig(gate_probability=1.5)
     with pytest.raises(ValueError, match="motion_model"):
         ekf_slam.EKFSLAMConfig(motion_model="teleport")
-    state = ekf_slam.init(CONFIG, PARAMS, X0, P0)
+    state = ekf_slam.init(None, CONFIG, PARAMS, X0, P0)
     with pytest.raises(ValueError, match="state.mean"):
         ekf_slam.step(
+            None,
             state,
             ekf_slam.EKFSLAMConfig(num_landmarks=M + 1),
             PARAMS,
@@ -350,4 +356,4 @@ def test_bad_input_is_rejected():
         )
     obs = lm.RangeBearingObs(jnp.zeros((5, 2), jnp.int32), jnp.zeros((5, 2, 2)), jnp.ones((5, 2), bool))
     with pytest.raises(ValueError, match="same number of steps"):
-        ekf_slam.run(CONFIG, PARAMS, jnp.zeros((4, 3)), obs, state)
+        ekf_slam.run(None, state, CONFIG, PARAMS, jnp.zeros((4, 3)), obs)

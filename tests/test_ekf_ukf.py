@@ -12,6 +12,7 @@ from jaxnav.localization import ekf, ukf
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as lw
+from jaxnav.sim import trajectories
 
 LANDMARKS = lw.square_room_landmarks(10.0, 8)
 MOTION = motion.VelocityNoise(jnp.asarray([0.01, 0.005, 0.005, 0.01, 0.0, 0.0]), jnp.asarray([0.01, 0.01, 0.005]))
@@ -22,7 +23,7 @@ STEPS = 150
 
 
 def _simulate(key, steps=STEPS):
-    u = lw.loop_controls(steps)
+    u = trajectories.loop_controls(steps)
     x0 = X0 + jax.random.normal(jax.random.fold_in(key, 1), (3,)) * jnp.sqrt(jnp.diag(P0))
     return lw.simulate(key, LANDMARKS, x0, u, MOTION, SENSOR)
 
@@ -52,7 +53,7 @@ def test_nees_and_nis_are_consistent(module, config, getkey):
     overconfident = params._replace(sensor=lm.RangeBearingNoise(SENSOR.sd / 4))
 
     def filt(p, sim):
-        return module.run(config, p, sim.controls, sim.observations, module.init(config, p, X0, P0))[1]
+        return module.run(None, module.init(None, config, p, X0, P0), config, p, sim.controls, sim.observations)[1]
 
     lo, hi = chi2_gate(0.025, 3 * runs) / runs, chi2_gate(0.975, 3 * runs) / runs
 
@@ -77,8 +78,12 @@ def test_nees_and_nis_are_consistent(module, config, getkey):
 def test_ekf_and_ukf_agree_on_mildly_nonlinear_problem(getkey):
     sim = _simulate(getkey())
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
-    a = ekf.run(ekf.EKFConfig(), params, sim.controls, sim.observations, ekf.init(ekf.EKFConfig(), params, X0, P0))[1]
-    b = ukf.run(ukf.UKFConfig(), params, sim.controls, sim.observations, ukf.init(ukf.UKFConfig(), params, X0, P0))[1]
+    a = ekf.run(
+        None, ekf.init(None, ekf.EKFConfig(), params, X0, P0), ekf.EKFConfig(), params, sim.controls, sim.observations
+    )[1]
+    b = ukf.run(
+        None, ukf.init(None, ukf.UKFConfig(), params, X0, P0), ukf.UKFConfig(), params, sim.controls, sim.observations
+    )[1]
     pos_err = np.linalg.norm(np.asarray(a.estimate[:, :2] - sim.true_poses[:, :2]), axis=1)
     diff = np.linalg.norm(np.asarray(a.estimate[:, :2] - b.estimate[:, :2]), axis=1)
     # the two approximations differ by far less than their error against the truth
@@ -90,11 +95,11 @@ def test_step_loop_equals_run(getkey):
     sim = _simulate(getkey(), steps=20)
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     cfg = ekf.EKFConfig()
-    state = ekf.init(cfg, params, X0, P0)
-    final, trace = ekf.run(cfg, params, sim.controls, sim.observations, state)
+    state = ekf.init(None, cfg, params, X0, P0)
+    final, trace = ekf.run(None, state, cfg, params, sim.controls, sim.observations)
     for t in range(20):
         obs_t = jax.tree_util.tree_map(lambda x: x[t], sim.observations)
-        state, info = ekf.step(state, cfg, params, sim.controls[t], obs_t)
+        state, info = ekf.step(None, state, cfg, params, sim.controls[t], obs_t)
         np.testing.assert_allclose(info.estimate, trace.estimate[t], rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(state.cov, final.cov, rtol=1e-4, atol=1e-8)
 
@@ -110,9 +115,9 @@ def test_gating_rejects_range_outliers(module, config_type, getkey):
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     gated_cfg = config_type(gate_probability=0.999)
     plain_cfg = config_type()
-    s0 = module.init(plain_cfg, params, X0, P0)
-    gated = module.run(gated_cfg, params, sim.controls, bad, s0)[1]
-    plain = module.run(plain_cfg, params, sim.controls, bad, s0)[1]
+    s0 = module.init(None, plain_cfg, params, X0, P0)
+    gated = module.run(None, s0, gated_cfg, params, sim.controls, bad)[1]
+    plain = module.run(None, s0, plain_cfg, params, sim.controls, bad)[1]
     err = lambda tr: np.sqrt(np.mean(np.sum(_errors(tr.estimate, sim.true_poses)[:, :2] ** 2, axis=1)))  # noqa: E731
     n_out = int(np.sum(outlier & obs.mask))
     n_gated = int(np.sum(gated.num_gated))
@@ -128,7 +133,7 @@ def test_unknown_ids_are_ignored_and_counted(getkey):
     obs = sim.observations._replace(ids=ids, z=sim.observations.z.at[:, 0].set(jnp.nan))
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     cfg = ekf.EKFConfig()
-    tr = ekf.run(cfg, params, sim.controls, obs, ekf.init(cfg, params, X0, P0))[1]
+    tr = ekf.run(None, ekf.init(None, cfg, params, X0, P0), cfg, params, sim.controls, obs)[1]
     expected = np.sum(np.asarray(obs.mask[:, :2]), axis=1)
     np.testing.assert_array_equal(tr.num_ignored, expected)
     assert np.all(np.isfinite(np.asarray(tr.estimate)))
@@ -138,30 +143,30 @@ def test_bad_input_is_rejected():
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     cfg = ekf.EKFConfig()
     with pytest.raises(ValueError, match="positive definite"):
-        ekf.init(cfg, params, X0, jnp.asarray([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        ekf.init(None, cfg, params, X0, jnp.asarray([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(ValueError, match="symmetric"):
-        ekf.init(cfg, params, X0, jnp.asarray([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
+        ekf.init(None, cfg, params, X0, jnp.asarray([[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(ValueError, match="VelocityNoise"):
-        ekf.init(cfg, params._replace(motion=motion.OmniNoise(jnp.ones(3))), X0, P0)
+        ekf.init(None, cfg, params._replace(motion=motion.OmniNoise(jnp.ones(3))), X0, P0)
     with pytest.raises(ValueError, match="gate probability"):
         ekf.EKFConfig(gate_probability=1.5)
     with pytest.raises(ValueError, match="n \\+ λ"):
         ukf.UKFConfig(alpha=0.1, kappa=-4.0)
     with pytest.raises(ValueError, match="motion_model"):
         ukf.UKFConfig(motion_model="teleport")
-    state = ekf.init(cfg, params, X0, P0)
+    state = ekf.init(None, cfg, params, X0, P0)
     obs = lm.RangeBearingObs(jnp.zeros((5, 2), jnp.int32), jnp.zeros((5, 2, 2)), jnp.ones((5, 2), bool))
     with pytest.raises(ValueError, match="same number of steps"):
-        ekf.run(cfg, params, jnp.zeros((4, 3)), obs, state)
+        ekf.run(None, state, cfg, params, jnp.zeros((4, 3)), obs)
 
 
 def test_run_compiles_once(getkey):
     params = ekf.KalmanParams(MOTION, SENSOR, LANDMARKS)
     cfg = ekf.EKFConfig(gate_probability=0.99)
-    s0 = ekf.init(cfg, params, X0, P0)
+    s0 = ekf.init(None, cfg, params, X0, P0)
     a = _simulate(getkey(), steps=30)
-    ekf.run(cfg, params, a.controls, a.observations, s0)
-    before = ekf._run_jit._cache_size()
+    ekf.run(None, s0, cfg, params, a.controls, a.observations)
+    before = ekf.run.trace_count()
     b = _simulate(getkey(), steps=30)
-    ekf.run(cfg, params._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations, s0)
-    assert ekf._run_jit._cache_size() == before
+    ekf.run(None, s0, cfg, params._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations)
+    assert ekf.run.trace_count() == before

@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 
 from jaxnav.experiments import registry
+from jaxnav.experiments.hf_slam import ERROR_COLUMNS
 
 RUNS = 4
 FULL = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "experiments"
@@ -72,7 +73,7 @@ def test_files_and_json_layout(results, name):
     if "rows" in result:
         for row in result["rows"]:
             assert set(row["setting"]) == {"density", "reader_mm", "trajectory"}
-            for col in registry.ERROR_COLUMNS:
+            for col in ERROR_COLUMNS:
                 v = row[col]
                 assert np.isfinite(v["mean"]) and v["ci95"][0] <= v["mean"] <= v["ci95"][1]
                 assert v["paper"] is None or v["paper"] > 0

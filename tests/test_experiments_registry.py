@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxnav.experiments import registry
-from jaxnav.experiments.registry import ERROR_COLUMNS
+from jaxnav.experiments.hf_slam import ERROR_COLUMNS
 
 NAMES = ("table-3.1", "table-3.2", "table-4.1", "table-4.2", "fig-3.5", "fig-3.7", "fig-4.4", "kidnapping")
 
@@ -28,7 +28,7 @@ def test_cells_have_unique_ids_and_valid_settings(name, quick):
     cells = registry.get(name).cells(quick)
     assert cells and len({c.id for c in cells}) == len(cells)
     for c in cells:
-        assert callable(c.run_fn())
+        assert callable(c.fn)
         if quick:
             assert c.setting.robot_particles <= 200
 
@@ -124,3 +124,129 @@ def test_cli_lists_the_experiments_and_refuses_unknown_names():
         text=True,
     )
     assert bad.returncode == 2 and "unknown experiment" in bad.stderr
+
+
+# ---------------------------------------------------------------------------
+# the explicit catalog
+
+
+def test_catalog_lists_every_experiment_once_under_a_unique_name():
+    from jaxnav.experiments import catalog
+
+    listed = [exp for study in catalog.STUDIES for exp in study.EXPERIMENTS]
+    names = [exp.name for exp in listed]
+    assert len(names) == len(set(names)) == len(catalog.experiments())
+    assert list(catalog.experiments()) == names
+    assert all(registry.get(n) is e for n, e in zip(names, listed))
+    assert registry.names() == tuple(sorted(names))
+    assert set(NAMES) <= set(names)
+    assert {"table-5.2", "table-5.3", "ir-failure", "fig-5.3", "fig-5.5", "fig-5.6", "uhf-refresh"} <= set(names)
+    with pytest.raises(TypeError):
+        catalog.experiments()["new"] = listed[0]  # read-only: nothing registers itself
+
+
+def test_importing_the_registry_imports_no_study():
+    """A fresh interpreter: the registry and the shared modules load without any study; the first
+    look-up loads them through the catalog (and no study imports the registry or the catalog)."""
+    code = (
+        "import sys\n"
+        "from jaxnav.experiments import registry, report, stats, sweep\n"
+        "studies = ('hf_slam', 'ir', 'uhf', 'mrclam', 'catalog')\n"
+        "loaded = lambda: sorted(m for m in sys.modules if m.split('.')[:3][-1] in studies and m.startswith('jaxnav.experiments.'))\n"
+        "assert loaded() == [], loaded()\n"
+        "registry.get('table-3.1')\n"
+        "assert 'jaxnav.experiments.catalog' in sys.modules and 'jaxnav.experiments.hf_slam.tables' in sys.modules\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_no_study_imports_the_registry_or_the_catalog():
+    import ast
+    import pathlib
+
+    root = pathlib.Path(registry.__file__).parent
+    for path in root.rglob("*.py"):
+        if path.name in ("registry.py", "catalog.py"):
+            continue
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                mods = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                mods = [a.name for a in node.names]
+            else:
+                continue
+            for m in mods:
+                assert m not in ("jaxnav.experiments.registry", "jaxnav.experiments.catalog"), (path, m)
+
+
+# ---------------------------------------------------------------------------
+# a score with nothing to score is NaN, never 0
+
+
+def test_tag_errors_are_nan_when_no_tag_was_mapped():
+    """HF-RFID SLAM: the robot errors of a perfect estimate are 0, but a run that mapped no tag has
+    no tag error (NaN, not 0 mm); with one tag mapped 5 mm off in x the tag errors are 5, 0, 5 mm."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxnav.experiments import hf_slam as hf
+    from jaxnav.sim import tag_carpet as tc
+
+    setting = hf.HFSetting(carpet=(1.5, 1.5), rectangle=(0.5, 0.5, 0.5, 0.5), laps=1)
+    world = hf.make_world(jax.random.PRNGKey(0), setting)
+    truth = world.run.true_poses
+    tags = tc.tag_positions(world.carpet)
+    nothing = hf.MethodRun(truth, tags, jnp.zeros(tags.shape[0], bool), jnp.zeros(truth.shape[0], bool))
+    e = hf.score(world, nothing)
+    assert float(e.dr_mm) == 0.0 and float(e.x_mm) == 0.0
+    assert all(np.isnan(float(getattr(e, c))) for c in ("tx_mm", "ty_mm", "dt_mm"))
+    one = nothing._replace(tags=tags.at[0, 0].add(0.005), seen=nothing.seen.at[0].set(True))
+    e = hf.score(world, one)
+    np.testing.assert_allclose([float(e.tx_mm), float(e.ty_mm), float(e.dt_mm)], [5.0, 0.0, 5.0], atol=1e-3)
+    assert "n/a (nothing mapped)" in hf.format_errors([("none", hf.score(world, nothing))])
+
+
+def test_table_reports_runs_that_mapped_nothing():
+    """Two of eight runs of a row mapped no tag (NaN tag errors): the tag means are over the six
+    others, the row counts the two, the JSON holds no 0 for them; a row where no run mapped a tag has
+    NaN means, printed "n/a (nothing mapped)"."""
+    exp = registry.get("table-3.1")
+    cells = exp.cells(False)
+    raw = _fake_errors(cells, 8, np.random.default_rng(3))
+    for col in ("tx_mm", "ty_mm", "dt_mm"):
+        raw[cells[0].id][col][:2] = np.nan
+        raw[cells[1].id][col][:] = np.nan
+    result = {"experiment": exp.name, "title": exp.title, "runs": 8, "quick": False, **exp.summarize(raw, cells, False)}
+    some, none = result["rows"][0], result["rows"][1]
+    assert some["dt_mm"]["mean"] == pytest.approx(np.mean(raw[cells[0].id]["dt_mm"][2:]))
+    assert some["dt_mm"]["unscored_runs"] == 2 and "unscored_runs" not in some["dr_mm"]
+    assert np.isnan(none["dt_mm"]["mean"]) and none["dt_mm"]["unscored_runs"] == 8
+    text, md = exp.render(result), exp.markdown(result)
+    assert "n/a (nothing mapped)" in text and "n/a (nothing mapped)" in md
+    assert "; 2 runs n/a" in md and "(2 runs n/a)" in text
+    assert "NaN" in json.dumps(result)
+
+
+def test_ir_score_is_nan_without_a_scored_record():
+    import jax.numpy as jnp
+
+    from jaxnav.experiments.ir import positioning as ir
+
+    poses = jnp.zeros((4, 3))
+    mean, worst = ir.score(poses.at[:, 0].set(1.0), poses, jnp.full((4,), -1))
+    assert np.all(np.isnan(np.asarray(mean))) and np.all(np.isnan(np.asarray(worst)))
+
+
+def test_mrclam_map_error_is_nan_when_nothing_was_mapped():
+    """A SLAM run that mapped no landmark prints "n/a (nothing mapped)", not 0 mm."""
+    from jaxnav import metrics
+    from jaxnav.experiments import mrclam as xp
+
+    traj = metrics.TrajectoryError(np.float32(0.1), np.float32(0.01))
+    nan_map = metrics.MapError(np.float32(np.nan), np.float32(np.nan), np.eye(2), np.zeros(2))
+    res = xp.AlgorithmResult("ekf_slam", np.zeros((2, 3)), np.zeros((3, 2)), np.zeros(3, bool), 1.0, traj, 0.1, nan_map)
+    line = xp.format_table([(1, res)]).splitlines()[-1]
+    assert line.count("n/a (nothing mapped)") == 2 and "| 0 |" not in line

@@ -12,6 +12,7 @@ from jaxnav.core import fastmath, resampling
 from jaxnav.models import hf_rfid, motion, observation
 from jaxnav.models import landmarks as lm
 from jaxnav.sim import landmark_world as lw
+from jaxnav.sim import trajectories
 from jaxnav.slam import fastslam as fs
 
 LANDMARKS = lw.square_room_landmarks(10.0, 8)
@@ -23,7 +24,7 @@ CHUNK = 84  # half a loop of loop_controls (0.0375 rad per step)
 
 
 def _sims(key, runs, steps, motion_noise=MOTION, sensor=SENSOR):
-    u = lw.loop_controls(steps)
+    u = trajectories.loop_controls(steps)
     keys = jax.random.split(key, runs)
     return jax.vmap(lambda k: lw.simulate(k, LANDMARKS, X0, u, motion_noise, sensor, max_range=6.0))(keys)
 
@@ -49,7 +50,7 @@ def test_map_and_pose_errors_shrink_as_data_accumulates(version, getkey):
             for i in range(3):
                 c = _chunk(jax.tree_util.tree_map(lambda x: x[None], sim), i)
                 c = jax.tree_util.tree_map(lambda x: x[0], c)
-                state, tr = fs.run(jax.random.fold_in(k, i), cfg, PARAMS, c.controls, c.observations, state)
+                state, tr = fs.run(jax.random.fold_in(k, i), state, cfg, PARAMS, c.controls, c.observations)
                 m, seen = fs.map_estimate(state)
                 size = jnp.sum(jnp.exp(state.log_weights)[:, None] * jnp.trace(state.covs, axis1=-2, axis2=-1), axis=0)
                 out.append((m, seen, size, tr.estimate))
@@ -109,7 +110,7 @@ def test_fastslam2_proposal_keeps_particles_alive_with_accurate_sensor(getkey):
         cfg = fs.FastSLAMConfig(num_particles=20, num_landmarks=8, version=version)
 
         def one(k, sim):
-            return fs.run(k, cfg, params, sim.controls, sim.observations, fs.init(k, cfg, params, X0))[1]
+            return fs.run(k, fs.init(k, cfg, params, X0), cfg, params, sim.controls, sim.observations)[1]
 
         tr = jax.jit(jax.vmap(one))(keys, sims)
         ess[version] = float(np.mean(np.asarray(tr.ess)[:, 1:]))
@@ -126,7 +127,7 @@ def test_known_map_prior_tracks_pose(getkey):
     cfg = fs.FastSLAMConfig(num_particles=200, num_landmarks=8)
     covs = jnp.broadcast_to(1e-6 * jnp.eye(2), (8, 2, 2))
     state = fs.init(getkey(), cfg, PARAMS, X0, landmark_means=LANDMARKS, landmark_covs=covs)
-    _, tr = fs.run(getkey(), cfg, PARAMS, sim.controls, sim.observations, state)
+    _, tr = fs.run(getkey(), state, cfg, PARAMS, sim.controls, sim.observations)
     err = np.linalg.norm(np.asarray(tr.estimate[:, :2] - sim.true_poses[:, :2]), axis=1)
     assert err.mean() < 0.06, err.mean()
     assert int(np.sum(tr.num_new)) == 0
@@ -196,8 +197,8 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     obs = lm.RangeBearingObs(ids, z, mask)
     valid, safe_ids, _ = fs._slot_valid(obs, m)
     ref_means, ref_covs, ref_seen, ref_ll, ref_new = _sequential_reference(om, r, poses, means, covs, seen, obs, m)
-    fast = jax.jit(lambda *a: fs._update_landmarks(om, *a, lanes))
-    in_order = jax.jit(lambda *a: fs._update_landmarks_in_order(om, *a))  # the scan that gives the derivatives
+    fast = jax.jit(lambda *a: fs.update_landmarks(om, *a, lanes))
+    in_order = jax.jit(lambda *a: fs.update_landmarks_in_order(om, *a))  # the scan that gives the derivatives
     for update in (fast, in_order):
         upd, new_seen, ll, num_new = update(r, poses, means, covs, seen, obs, valid, safe_ids)
         got_means, got_covs = fs._write_rows(means, covs, upd, jnp.arange(n))
@@ -282,7 +283,7 @@ def test_log_likelihood_gradient_matches_finite_differences(map_copy, getkey):
         def loss(sd):
             params = fs.FastSLAMParams(motion_noise, lm.RangeBearingNoise(sd))
             state = fs.init(k_init, cfg, params, jnp.asarray(X0, jnp.float64))
-            _, trace = fs._run_jit(k_run, cfg, params, sim.controls, sim.observations, state)
+            _, trace = fs.run.jitted(k_run, state, cfg, params, sim.controls, sim.observations)
             return jnp.sum(trace.log_likelihood)
 
         sd = jnp.asarray([0.1, 0.03], jnp.float64)
@@ -320,7 +321,7 @@ def _isotropic_footprint_model():
 
 def _robot_frame_sim(key, steps, sd):
     """Controls and observations of the landmark world seen as robot-frame positions with noise ``sd``."""
-    u = lw.loop_controls(steps)
+    u = trajectories.loop_controls(steps)
     k_sim, k_noise = jax.random.split(key)
     truth = lw.simulate(k_sim, LANDMARKS, X0, u, MOTION, SENSOR, max_range=6.0)
     rel = jax.vmap(lambda x: jax.vmap(lambda m: hf_rfid.robot_frame(x, m))(LANDMARKS))(truth.true_poses)
@@ -334,7 +335,7 @@ def test_generic_observation_model(getkey):
     u, obs = _robot_frame_sim(getkey(), 150, sd)
     cfg = fs.FastSLAMConfig(num_particles=50, num_landmarks=8, observation_model=om)
     params = fs.FastSLAMParams(MOTION, sd)
-    final, tr = fs.run(getkey(), cfg, params, u, obs, fs.init(getkey(), cfg, params, X0))
+    final, tr = fs.run(getkey(), fs.init(getkey(), cfg, params, X0), cfg, params, u, obs)
     m, seen = fs.map_estimate(final)
     err = np.linalg.norm(np.asarray(m - LANDMARKS), axis=1)[np.asarray(seen)]
     assert np.asarray(seen).all() and err.mean() < 0.15, err
@@ -350,7 +351,7 @@ def test_step_loop_equals_run(num_landmarks, steps, unroll, getkey):
     assert fs._run_unroll(cfg) == unroll
     key = getkey()
     init_key = getkey()
-    final, trace = fs.run(key, cfg, PARAMS, sim.controls, sim.observations, fs.init(init_key, cfg, PARAMS, X0))
+    final, trace = fs.run(key, fs.init(init_key, cfg, PARAMS, X0), cfg, PARAMS, sim.controls, sim.observations)
     state = fs.init(init_key, cfg, PARAMS, X0)
     for t in range(steps):
         obs_t = jax.tree_util.tree_map(lambda x: x[t], sim.observations)
@@ -372,13 +373,13 @@ def test_bad_input_and_single_compilation(getkey):
     a = jax.tree_util.tree_map(lambda x: x[0], sims)
     b = jax.tree_util.tree_map(lambda x: x[1], sims)
     with pytest.raises(ValueError, match="same number of steps"):
-        fs.run(getkey(), cfg, PARAMS, a.controls[:5], a.observations, state)
-    fs.run(getkey(), cfg, PARAMS, a.controls, a.observations, state)
-    before = fs._run_jit._cache_size()
+        fs.run(getkey(), state, cfg, PARAMS, a.controls[:5], a.observations)
+    fs.run(getkey(), state, cfg, PARAMS, a.controls, a.observations)
+    before = fs.run.trace_count()
     fs.run(
-        getkey(), cfg, PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations, state
+        getkey(), state, cfg, PARAMS._replace(sensor=lm.RangeBearingNoise(SENSOR.sd * 2)), b.controls, b.observations
     )
-    assert fs._run_jit._cache_size() == before
+    assert fs.run.trace_count() == before
 
 
 def test_in_place_map_copy_equals_gather(getkey, monkeypatch):
@@ -395,7 +396,7 @@ def test_in_place_map_copy_equals_gather(getkey, monkeypatch):
     z = jax.vmap(lambda mu: lm.predict(X0, mu))(means[ids])
     obs = lm.RangeBearingObs(ids, z, jnp.ones(5, bool))
     key, control = getkey(), jnp.asarray([0.3, 0.1, 0.25])
-    step = lambda: jax.jit(fs._step, static_argnames="config")(key, state, cfg, PARAMS, control, obs)  # noqa: E731
+    step = lambda: jax.jit(fs.kernel, static_argnames="config")(key, state, cfg, PARAMS, control, obs)  # noqa: E731
     in_place, info = step()
     assert bool(info.resampled)
     ancestors_moved = not np.array_equal(np.asarray(in_place.means), np.asarray(state.means))
@@ -420,7 +421,7 @@ def test_map_copy_choice_gives_the_same_maps_and_bad_choices_are_refused(getkey)
         cfg = fs.FastSLAMConfig(num_particles=16, num_landmarks=m, map_copy=mode)
         state = fs.init(k0, cfg, PARAMS, X0, jnp.asarray([0.05, 0.05, 0.02]), landmark_means=means)
         state = state._replace(means=state.means + jnp.asarray(rng.normal(0, 0.05, state.means.shape), jnp.float32))
-        out[mode] = jax.jit(fs._step, static_argnames="config")(key, state, cfg, PARAMS, control, obs)[0]
+        out[mode] = jax.jit(fs.kernel, static_argnames="config")(key, state, cfg, PARAMS, control, obs)[0]
         rng = np.random.default_rng(1)  # the same perturbation for both modes
         rng.uniform(0, 10, (m, 2))
     for a, b in zip(out["gather"], out["in_place"]):
@@ -450,7 +451,7 @@ def test_shared_covariances_filter_like_per_particle_ones(version, map_copy, get
             num_particles=32, num_landmarks=8, version=version, observation_model=om, map_copy=map_copy, covariance=cov
         )
         state = fs.init(k0, cfg, params, X0, jnp.asarray([0.02, 0.02, 0.01]))
-        out[cov] = fs.run(key, cfg, params, u, obs, state)
+        out[cov] = fs.run(key, state, cfg, params, u, obs)
     (pp, pp_trace), (sh, sh_trace) = out["per_particle"], out["shared"]
     assert pp.covs.shape == (32, 8, 2, 2) and sh.covs.shape == (8, 2, 2)
     assert bool(jnp.all(sh.seen)) and bool(jnp.any(sh_trace.resampled))
@@ -479,7 +480,7 @@ def test_shared_covariance_gradient_matches_finite_differences(getkey):
         def loss(sd):
             params = fs.FastSLAMParams(motion_noise, sd)
             state = fs.init(k_init, cfg, params, jnp.asarray(X0, jnp.float64))
-            _, trace = fs._run_jit(k_run, cfg, params, jnp.asarray(u, jnp.float64), obs, state)
+            _, trace = fs.run.jitted(k_run, state, cfg, params, jnp.asarray(u, jnp.float64), obs)
             return jnp.sum(trace.log_likelihood)
 
         sd = jnp.asarray(0.05, jnp.float64)
@@ -510,10 +511,10 @@ def test_covariance_choice_resolves_and_bad_choices_are_refused(getkey):
     state = fs.init(getkey(), per_particle, params, X0)
     u, obs = _robot_frame_sim(getkey(), 3, 0.05)
     with pytest.raises(ValueError, match="state.covs"):
-        fs.run(getkey(), shared, params, u, obs, state)
+        fs.run(getkey(), state, shared, params, u, obs)
     # a model that claims pose-free covariances but rotates its noise with the heading
     liar = _robot_frame_model()._replace(name="liar", pose_free_covariance=True)
     cfg = fs.FastSLAMConfig(num_particles=8, num_landmarks=8, observation_model=liar)
     liar_params = fs.FastSLAMParams(MOTION, jnp.asarray([0.05, 0.02]))
     with pytest.raises(ValueError, match="declares pose_free_covariance"):
-        fs.run(getkey(), cfg, liar_params, u, obs, fs.init(getkey(), cfg, liar_params, X0))
+        fs.run(getkey(), fs.init(getkey(), cfg, liar_params, X0), cfg, liar_params, u, obs)

@@ -12,6 +12,7 @@ trace's estimates are float64, and that the estimates are finite.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -32,9 +33,9 @@ from jaxnav.localization import (
     rfid_tag,
     ukf,
 )
-from jaxnav.models import hf_rfid, ir
+from jaxnav.models import hf_rfid
 from jaxnav.models.motion import OmniNoise
-from jaxnav.sim import ir_world, tag_carpet, uhf_reader
+from jaxnav.sim import ir_world, tag_carpet, trajectories, uhf_reader
 from jaxnav.sim import landmark_world as world
 from jaxnav.slam import ekf_slam, fastslam, pf_slam, ps_slam
 
@@ -70,15 +71,15 @@ def _float_leaves(tree):
 def _landmark_world(key):
     """The demo room's models and a short simulated drive, all float64."""
     _, p = demo_setting(10)  # built under x64: float64 already
-    controls = _f64(world.loop_controls(STEPS, 0.5, 0.21, 0.25))  # float32 by design
+    controls = _f64(trajectories.loop_controls(STEPS, 0.5, 0.21, 0.25))  # float32 by design
     return p, world.simulate(key, p.landmarks, jnp.asarray(START), controls, p.motion, p.sensor)
 
 
 def _kalman_case(module, config, key):
     p, sim = _landmark_world(key)
     params = ekf.KalmanParams(p.motion, p.sensor, p.landmarks)
-    state = module.init(config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.01, 0.01, 0.001])))
-    return Case((state,), lambda s: module.run(config, params, sim.controls, sim.observations, s))
+    state = module.init(None, config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.01, 0.01, 0.001])))
+    return Case((state,), lambda s: module.run(None, s, config, params, sim.controls, sim.observations))
 
 
 def _ekf(key):
@@ -93,8 +94,11 @@ def _grid(key):
     p, sim = _landmark_world(key)
     config = grid.GridConfig(ROOM, 10, 10, 8, "velocity")
     params = grid.GridParams(p.motion, p.sensor, p.landmarks)
-    states = (grid.init(config, params), grid.init(config, params, jnp.asarray(START), jnp.asarray([0.3, 0.3, 0.1])))
-    return Case(states, lambda s: grid.run(config, params, sim.controls, sim.observations, s))
+    states = (
+        grid.init(None, config, params),
+        grid.init(None, config, params, jnp.asarray(START), jnp.asarray([0.3, 0.3, 0.1])),
+    )
+    return Case(states, lambda s: grid.run(None, s, config, params, sim.controls, sim.observations))
 
 
 def _mcl_like(module, config, make_params, key):
@@ -106,7 +110,7 @@ def _mcl_like(module, config, make_params, key):
         module.init(k_init, config, params, jnp.asarray(START), jnp.asarray([0.3, 0.3, 0.1])),
         module.init_uniform(k_uniform, config, params, ROOM),
     )
-    return Case(states, lambda s: module.run(k_run, config, params, sim.controls, sim.observations, s))
+    return Case(states, lambda s: module.run(k_run, s, config, params, sim.controls, sim.observations))
 
 
 def _mcl(key):
@@ -129,8 +133,8 @@ def _ekf_slam(key):
     p, sim = _landmark_world(key)
     config = ekf_slam.EKFSLAMConfig(num_landmarks=p.landmarks.shape[0])
     params = ekf_slam.EKFSLAMParams(p.motion, p.sensor)
-    state = ekf_slam.init(config, params, jnp.asarray(START), jnp.diag(jnp.asarray([1e-4, 1e-4, 1e-5])))
-    return Case((state,), lambda s: ekf_slam.run(config, params, sim.controls, sim.observations, s))
+    state = ekf_slam.init(None, config, params, jnp.asarray(START), jnp.diag(jnp.asarray([1e-4, 1e-4, 1e-5])))
+    return Case((state,), lambda s: ekf_slam.run(None, s, config, params, sim.controls, sim.observations))
 
 
 def _fastslam(key):
@@ -139,7 +143,7 @@ def _fastslam(key):
     params = fastslam.FastSLAMParams(p.motion, p.sensor)
     k_init, k_run = jax.random.split(key)
     state = fastslam.init(k_init, config, params, jnp.asarray(START))
-    return Case((state,), lambda s: fastslam.run(k_run, config, params, sim.controls, sim.observations, s))
+    return Case((state,), lambda s: fastslam.run(k_run, s, config, params, sim.controls, sim.observations))
 
 
 # --------------------------------------------------------------------------- HF-RFID tag carpet
@@ -150,7 +154,7 @@ def _carpet_drive(key):
     k_carpet, k_sim = jax.random.split(key)
     carpet = tag_carpet.make_carpet(k_carpet, (1.2, 1.2), density=100, origin=(-0.1, -0.1))
     sensor = _f64(hf_rfid.reader_params(0.06, beta=0.1))
-    start, controls = tag_carpet.rectangle_controls(1.0, 1.0, speed=0.2, dt=0.1, laps=1)
+    start, controls = trajectories.rectangle_controls(1.0, 1.0, speed=0.2, dt=0.1, laps=1)
     return sensor, tag_carpet.simulate(k_sim, carpet, sensor, start, controls[:STEPS], jnp.asarray([0.01, 0.01, 0.01]))
 
 
@@ -160,7 +164,7 @@ def _tag_slam_case(module, config, make_params, key):
     params = make_params(sensor)
     k_init, k_run = jax.random.split(key)
     state = module.init(k_init, config, params, drive.start_pose, jnp.asarray([0.005, 0.005, 0.005]))
-    return Case((state,), lambda s: module.run(k_run, config, params, drive.odometry, drive.detections, s))
+    return Case((state,), lambda s: module.run(k_run, s, config, params, drive.odometry, drive.detections))
 
 
 def _odometry_noise():
@@ -192,7 +196,7 @@ def _rfid_tag(key):
     config = rfid_tag.RFIDTagConfig(num_particles=64)
     params = _f64(rfid_tag.default_params())
     state = rfid_tag.init(k_init, config, params)
-    return Case((state,), lambda s: rfid_tag.run(k_run, config, params, reads, s))
+    return Case((state,), lambda s: rfid_tag.run(k_run, s, config, params, reads))
 
 
 def _rfid_anchor(key):
@@ -206,21 +210,21 @@ def _rfid_anchor(key):
     config = rfid_anchor.RFIDAnchorConfig(num_particles=64)
     params = _f64(rfid_anchor.default_params(anchors, box_lo=(0, 0, 0.5), box_hi=(2, 3, 1.1)))
     state = rfid_anchor.init(k_init, config, params)
-    return Case((state,), lambda s: rfid_anchor.run(k_run, config, params, controls, reads, s))
+    return Case((state,), lambda s: rfid_anchor.run(k_run, s, config, params, controls, reads))
 
 
 # --------------------------------------------------------------------------- IR emitters
 
 
 def _ir_mcl(key):
-    layout = _f64(ir.experiment_layout())
+    layout = _f64(ir_world.experiment_layout())
     poses = ir_world.polyline_path(ir_world.EXPERIMENT_WAYPOINTS, speed=0.2, dt=0.1, num_steps=STEPS)
     k_sim, k_init, k_run = jax.random.split(key, 3)
     sim = _f64(ir_world.simulate(k_sim, layout, poses, 0.1))
     config = ir_mcl.IRMCLConfig(num_particles=32)
     params = _f64(ir_mcl.default_params(config, layout))
     state = ir_mcl.init(k_init, config, params, ir_world.layout_area(layout))
-    return Case((state,), lambda s: ir_mcl.run(k_run, config, params, sim.controls, sim.detections, s))
+    return Case((state,), lambda s: ir_mcl.run(k_run, s, config, params, sim.controls, sim.detections))
 
 
 CASES = {
@@ -240,9 +244,16 @@ CASES = {
 }
 
 
+def _field_names(trace) -> tuple[str, ...]:
+    """A trace's fields: a dataclass (the particle filters' infos) or a NamedTuple (the Gaussian filters')."""
+    if dataclasses.is_dataclass(trace):
+        return tuple(f.name for f in dataclasses.fields(trace))
+    return trace._fields
+
+
 def _estimates(trace) -> dict[str, jax.Array]:
     """The trace's estimate fields (``estimate``, ``map_estimate``, ``slot_estimates``, ...)."""
-    return {name: getattr(trace, name) for name in trace._fields if "estimate" in name}
+    return {name: getattr(trace, name) for name in _field_names(trace) if "estimate" in name}
 
 
 def _assert_float64(name: str, tree) -> None:
@@ -260,7 +271,7 @@ def test_init_and_run_stay_float64(filt, getkey):
             final, trace = case.run(state)
             _assert_float64(f"final state from initial state {i}", final)
             estimates = _estimates(trace)
-            assert estimates, trace._fields
+            assert estimates, _field_names(trace)
             for field, est in estimates.items():
                 assert jnp.result_type(est) == jnp.float64, (i, field, jnp.result_type(est))
                 assert np.all(np.isfinite(np.asarray(est))), (i, field)

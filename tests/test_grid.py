@@ -38,6 +38,7 @@ from jaxnav.localization import grid, mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
 
 START = jnp.asarray([5.0, 1.5, 0.0])
 ROOM = (0.0, 10.0, 0.0, 10.0)
@@ -58,7 +59,7 @@ def _params(landmarks=None):
 @functools.cache
 def _sim(seed=10):
     params = _params()
-    controls = world.loop_controls(STEPS, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(STEPS, 0.5, 0.21, 0.25)
     # max_range 20 m > the room's diagonal: every landmark is seen (the symmetric test needs the cut-off,
     # and an equal argument list shares the simulator's compilation).
     key = jax.random.PRNGKey(seed)
@@ -72,7 +73,7 @@ def _angle_diff(a, b):
 @functools.cache
 def _tracking(config):
     params, sim = _params(), _sim()
-    _, trace = grid.run(config, params, sim.controls, sim.observations, grid.init(config, params, START))
+    _, trace = grid.run(None, grid.init(None, config, params, START), config, params, sim.controls, sim.observations)
     err = np.linalg.norm(np.asarray(trace.estimate[:, :2] - sim.true_poses[:, :2]), axis=1)
     return trace, err, _angle_diff(trace.estimate[:, 2], sim.true_poses[:, 2])
 
@@ -100,7 +101,7 @@ def test_negative_control_a_mirrored_bearing_breaks_the_tracking_bounds():
     bounds above, so they have teeth; it reuses the compiled scan."""
     params, sim = _params(), _sim()
     mirrored = sim.observations._replace(z=sim.observations.z.at[:, :, 1].multiply(-1.0))
-    _, trace = grid.run(CONFIG, params, sim.controls, mirrored, grid.init(CONFIG, params, START))
+    _, trace = grid.run(None, grid.init(None, CONFIG, params, START), CONFIG, params, sim.controls, mirrored)
     err = np.linalg.norm(np.asarray(trace.estimate[:, :2] - sim.true_poses[:, :2]), axis=1)
     assert np.sqrt(np.mean(err**2)) > CELL and err.max() > 2 * CELL, (np.sqrt(np.mean(err**2)), err.max())
 
@@ -113,7 +114,7 @@ def test_agrees_with_mcl_on_the_same_data():
     trace, _, _ = _tracking(CONFIG)
     m_config, m_params = demo_setting(2000)
     m_state = mcl.init(jax.random.PRNGKey(1), m_config, m_params, START)
-    _, m_trace = mcl.run(jax.random.PRNGKey(2), m_config, m_params, sim.controls, sim.observations, m_state)
+    _, m_trace = mcl.run(jax.random.PRNGKey(2), m_state, m_config, m_params, sim.controls, sim.observations)
     gap = np.linalg.norm(np.asarray(trace.estimate[:, :2] - m_trace.estimate[:, :2]), axis=1)
     assert gap.max() < 1.5 * CELL, gap.max()
     assert gap.mean() < 0.5 * CELL, gap.mean()
@@ -148,7 +149,7 @@ def test_identical_landmarks_in_a_symmetric_world_give_two_equal_modes():
     # room, out of range (so never observed): the simulator and the known-association run then reuse
     # the compilations of the other tests.
     padded = _params(np.concatenate([landmarks, np.full((4, 2), 50.0)]))
-    controls = world.loop_controls(STEPS, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(STEPS, 0.5, 0.21, 0.25)
     sim = world.simulate(
         jax.random.PRNGKey(0), padded.landmarks, START, controls, padded.motion, padded.sensor, max_range=20.0
     )
@@ -158,7 +159,7 @@ def test_identical_landmarks_in_a_symmetric_world_give_two_equal_modes():
 
     params = _params(landmarks)  # the four identical landmarks: the mixture is over these
     unknown = grid.GridConfig(ROOM, 40, 40, 36, "velocity", association="unknown")
-    final, trace = grid.run(unknown, params, sim.controls, sim.observations, grid.init(unknown, params))
+    final, trace = grid.run(None, grid.init(None, unknown, params), unknown, params, sim.controls, sim.observations)
     at_truth, at_image = _mass_near(final.log_belief, truth), _mass_near(final.log_belief, image)
     # Grid, motion kernels and likelihood are exactly symmetric: the masses agree to float32 round-off
     # and hold (almost) everything between them.
@@ -169,7 +170,7 @@ def test_identical_landmarks_in_a_symmetric_world_give_two_equal_modes():
     assert min(np.linalg.norm(map_pose[:2] - truth[:2]), np.linalg.norm(map_pose[:2] - image[:2])) < CELL
 
     # Known identities (ids 0–3 index the padded map).
-    k_final, k_trace = grid.run(CONFIG, padded, sim.controls, sim.observations, grid.init(CONFIG, padded))
+    k_final, k_trace = grid.run(None, grid.init(None, CONFIG, padded), CONFIG, padded, sim.controls, sim.observations)
     k_truth, k_image = _mass_near(k_final.log_belief, truth), _mass_near(k_final.log_belief, image)
     assert k_truth > 0.99 and k_image < 1e-6, (k_truth, k_image)
     # Each mode of the ambiguous belief is a copy of the unambiguous one: entropy + log 2.
@@ -306,7 +307,7 @@ def test_a_noise_free_sub_cell_move_is_split_linearly_not_rounded_away():
     with jax.enable_x64(True):
         params = _tiny_params(noise=False)
         control = jnp.asarray([0.06, 0.0, 1.0])
-        state = grid.init(TINY, params, jnp.asarray([0.3, 0.3, heading]))  # the centre of cell (1, 1, 4)
+        state = grid.init(None, TINY, params, jnp.asarray([0.3, 0.3, heading]))  # the centre of cell (1, 1, 4)
         log_b = state.log_belief
         first = np.exp(np.asarray(_tiny_predict(log_b, params, control)[0]))
         for _ in range(3):
@@ -344,24 +345,20 @@ def test_factorised_likelihood_equals_landmarks_log_likelihood_at_the_cell_centr
 # --------------------------------------------------------------------------- interface and robustness
 
 
-def test_run_equals_a_loop_of_steps_and_new_data_never_recompile(monkeypatch):
+def test_run_equals_a_loop_of_steps_and_new_data_never_recompile():
     params, sim = _params(), _sim()
-    state = grid.init(CONFIG, params, START, jnp.asarray([0.2, 0.2, 0.1]))
-    _, trace = grid.run(CONFIG, params, sim.controls, sim.observations, state)
+    state = grid.init(None, CONFIG, params, START, jnp.asarray([0.2, 0.2, 0.1]))
+    _, trace = grid.run(None, state, CONFIG, params, sim.controls, sim.observations)
     # Same config and shapes: new data, new parameter values and a new prior reuse the compiled scan.
-    traces = []
-    original = grid._step
-    monkeypatch.setattr(grid, "_step", lambda *a, **k: traces.append(1) or original(*a, **k))
-    cache = grid._run_jit._cache_size()
+    before = grid.run.trace_count()
     other = _sim(seed=99)
     params2 = params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1])))
-    grid.run(CONFIG, params2, other.controls, other.observations, grid.init(CONFIG, params2))
-    assert traces == [] and grid._run_jit._cache_size() == cache
-    monkeypatch.undo()
+    grid.run(None, grid.init(None, CONFIG, params2), CONFIG, params2, other.controls, other.observations)
+    assert grid.run.trace_count() == before
     s = state
     for t in range(3):
         s, info = grid.step(
-            s, CONFIG, params, sim.controls[t], jax.tree_util.tree_map(lambda x: x[t], sim.observations)
+            None, s, CONFIG, params, sim.controls[t], jax.tree_util.tree_map(lambda x: x[t], sim.observations)
         )
         for got, want in zip(info, jax.tree_util.tree_map(lambda x: x[t], trace)):
             np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
@@ -373,9 +370,9 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
     obs = sim.observations
     masked = obs._replace(mask=obs.mask.at[:, 5:].set(False), z=obs.z.at[:, 5].set(jnp.nan))
     foreign = masked._replace(ids=obs.ids.at[:, 6].set(8).at[:, 7].set(-1), mask=masked.mask.at[:, 6:].set(True))
-    state = grid.init(CONFIG, params, START)
-    _, ref = grid.run(CONFIG, params, sim.controls, masked, state)
-    _, got = grid.run(CONFIG, params, sim.controls, foreign, state)
+    state = grid.init(None, CONFIG, params, START)
+    _, ref = grid.run(None, state, CONFIG, params, sim.controls, masked)
+    _, got = grid.run(None, state, CONFIG, params, sim.controls, foreign)
     np.testing.assert_array_equal(got.estimate, ref.estimate)
     np.testing.assert_array_equal(got.num_ignored, np.full(STEPS, 2))
     np.testing.assert_array_equal(ref.num_ignored, np.zeros(STEPS))
@@ -385,7 +382,7 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
 def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan():
     params, sim = _params(), _sim()
     bad = sim.observations._replace(z=sim.observations.z.at[1, 0].set(jnp.nan))  # unmasked NaN at step 1
-    final, trace = grid.run(CONFIG, params, sim.controls, bad, grid.init(CONFIG, params, START))
+    final, trace = grid.run(None, grid.init(None, CONFIG, params, START), CONFIG, params, sim.controls, bad)
     np.testing.assert_array_equal(np.flatnonzero(trace.degenerate), [1])
     assert trace.log_likelihood[1] == -np.inf and np.all(np.isfinite(np.delete(np.asarray(trace.log_likelihood), 1)))
     assert not np.any(np.isnan(final.log_belief)) and np.all(np.isfinite(trace.estimate))
@@ -396,10 +393,10 @@ def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan():
 def test_mass_leaving_the_grid_is_reported_and_a_fully_lost_belief_resets_to_uniform():
     params = _params()
     empty = lm.RangeBearingObs(jnp.zeros((STEPS, 8), jnp.int32), jnp.zeros((STEPS, 8, 2)), jnp.zeros((STEPS, 8), bool))
-    near_edge = grid.init(CONFIG, params, jnp.asarray([9.9, 5.0, 0.0]), jnp.asarray([0.2, 0.2, 0.05]))
+    near_edge = grid.init(None, CONFIG, params, jnp.asarray([9.9, 5.0, 0.0]), jnp.asarray([0.2, 0.2, 0.05]))
     controls = jnp.zeros((STEPS, 3)).at[:, 2].set(0.25)
     controls = controls.at[0, 0].set(0.8).at[1, 0].set(100.0)  # 0.2 m east, then 25 m: everything leaves
-    _, trace = grid.run(CONFIG, params, controls, empty, near_edge)
+    _, trace = grid.run(None, near_edge, CONFIG, params, controls, empty)
     assert 0.3 < float(trace.mass_lost[0]) < 0.9
     np.testing.assert_allclose(float(trace.mass_lost[1]), 1.0)
     np.testing.assert_allclose(float(trace.entropy[1]), math.log(NUM_CELLS), rtol=1e-6)  # reset to uniform
@@ -409,7 +406,7 @@ def test_mass_leaving_the_grid_is_reported_and_a_fully_lost_belief_resets_to_uni
 
 def test_uniform_prior_localizes_globally():
     params, sim = _params(), _sim(seed=4)
-    _, trace = grid.run(CONFIG, params, sim.controls, sim.observations, grid.init(CONFIG, params))
+    _, trace = grid.run(None, grid.init(None, CONFIG, params), CONFIG, params, sim.controls, sim.observations)
     err = np.linalg.norm(np.asarray(trace.estimate[10:, :2] - sim.true_poses[10:, :2]), axis=1)
     assert err.max() < CELL
     assert float(trace.entropy[0]) < 0.5 * math.log(NUM_CELLS)
@@ -417,7 +414,7 @@ def test_uniform_prior_localizes_globally():
 
 def test_gaussian_prior_is_the_cell_assigned_gaussian():
     params = _params()
-    state = grid.init(CONFIG, params, jnp.asarray([4.0, 6.0, 3.1]), jnp.asarray([0.5, 0.3, 0.2]))
+    state = grid.init(None, CONFIG, params, jnp.asarray([4.0, 6.0, 3.1]), jnp.asarray([0.5, 0.3, 0.2]))
     p = np.exp(np.asarray(state.log_belief, np.float64))
     np.testing.assert_allclose(p.sum(), 1.0, atol=1e-5)
     cells = np.asarray(grid.cell_centres(CONFIG), np.float64)
@@ -428,7 +425,7 @@ def test_gaussian_prior_is_the_cell_assigned_gaussian():
     s = np.einsum("xyk,xyk->", p, np.sin(cells[..., 2]))
     c = np.einsum("xyk,xyk->", p, np.cos(cells[..., 2]))
     assert _angle_diff(math.atan2(s, c), 3.1) < 0.01
-    uniform = grid.init(CONFIG, params)
+    uniform = grid.init(None, CONFIG, params)
     np.testing.assert_allclose(np.asarray(uniform.log_belief), -math.log(40 * 40 * 36), rtol=1e-6)
 
 
@@ -457,8 +454,8 @@ def test_bad_config_is_refused(kwargs, match):
 
 def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
     params, sim = _params(), _sim()
-    state = grid.init(CONFIG, params, START)
-    run = lambda p=params, c=sim.controls, o=sim.observations, s=state: grid.run(CONFIG, p, c, o, s)  # noqa: E731
+    state = grid.init(None, CONFIG, params, START)
+    run = lambda p=params, c=sim.controls, o=sim.observations, s=state: grid.run(None, s, CONFIG, p, c, o)  # noqa: E731
     with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
         run(p=params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, 0.0]))))
     with pytest.raises(ValueError, match="motion noise alphas must be finite and non-negative"):
@@ -472,7 +469,7 @@ def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
     with pytest.raises(ValueError, match="params must be a GridParams"):
         run(p=tuple(params))
     with pytest.raises(ValueError, match="config must be a GridConfig"):
-        grid.run(mcl.MCLConfig(), params, sim.controls, sim.observations, state)
+        grid.run(None, state, mcl.MCLConfig(), params, sim.controls, sim.observations)
     with pytest.raises(ValueError, match="observations must be a RangeBearingObs"):
         run(o=tuple(sim.observations))
     with pytest.raises(ValueError, match="controls contains NaN"):
@@ -486,10 +483,10 @@ def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
     with pytest.raises(ValueError, match="state.log_belief contains NaN"):
         run(s=grid.GridState(state.log_belief.at[0, 0, 0].set(jnp.nan)))
     with pytest.raises(ValueError, match="initial_pose must lie inside config.bounds"):
-        grid.init(CONFIG, params, jnp.asarray([11.0, 5.0, 0.0]))
+        grid.init(None, CONFIG, params, jnp.asarray([11.0, 5.0, 0.0]))
     with pytest.raises(ValueError, match="initial_sd must be finite and non-negative"):
-        grid.init(CONFIG, params, START, jnp.asarray([0.1, -1.0, 0.1]))
+        grid.init(None, CONFIG, params, START, jnp.asarray([0.1, -1.0, 0.1]))
     with pytest.raises(ValueError, match="initial_sd needs an initial_pose"):
-        grid.init(CONFIG, params, None, jnp.ones(3))
+        grid.init(None, CONFIG, params, None, jnp.ones(3))
     with pytest.raises(ValueError, match=r"initial_pose must have shape \(3\)"):
-        grid.init(CONFIG, params, jnp.zeros(2))
+        grid.init(None, CONFIG, params, jnp.zeros(2))

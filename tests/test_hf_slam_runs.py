@@ -73,7 +73,7 @@ def test_tag_error_falls_with_the_number_of_detections():
         params = pf_slam.PFSLAMParams(setting.motion(), setting.sensor())
         state = pf_slam.init(jax.random.PRNGKey(9), config, params, world.run.start_pose)
         _, trace = pf_slam.run(
-            jax.random.PRNGKey(10 + seed), config, params, world.run.odometry, world.run.detections, state
+            jax.random.PRNGKey(10 + seed), state, config, params, world.run.odometry, world.run.detections
         )
         tags = np.asarray(tc.tag_positions(world.carpet))
         ids, counts, est = (np.asarray(a) for a in (trace.slot_ids, trace.slot_counts, trace.slot_estimates))
@@ -168,9 +168,9 @@ def test_run_with_a_donated_state_equals_run(method):
     init = lambda: module.init(jax.random.PRNGKey(4), config, params, world.run.start_pose)  # noqa: E731
     key = jax.random.PRNGKey(5)
     kept = init()
-    plain = module.run(key, config, params, world.run.odometry, obs, kept)
+    plain = module.run(key, kept, config, params, world.run.odometry, obs)
     donated_state = init()
-    donated = module.run(key, config, params, world.run.odometry, obs, donated_state, donate_state=True)
+    donated = module.run(key, donated_state, config, params, world.run.odometry, obs, donate_state=True)
     assert all(leaf.is_deleted() for leaf in jax.tree_util.tree_leaves(donated_state))
     assert not any(leaf.is_deleted() for leaf in jax.tree_util.tree_leaves(kept))
     for a, b in zip(jax.tree_util.tree_leaves(plain), jax.tree_util.tree_leaves(donated)):

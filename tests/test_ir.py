@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaxnav.models import ir
+from jaxnav.sim import ir_world
 
 W = ir.W_VOLTAGE_MODEL
 
@@ -146,7 +147,7 @@ def test_lattice_layout_of_fig_5_1():
 
 
 def test_experiment_and_unique11_layouts_of_section_5_4():
-    exp = ir.experiment_layout()
+    exp = ir_world.experiment_layout()
     names = ir.layout_names(exp)
     assert exp.num_emitters == 11
     assert int(np.sum(exp.unique)) == 3 and int(np.sum(~np.asarray(exp.unique))) == 8
@@ -157,7 +158,7 @@ def test_experiment_and_unique11_layouts_of_section_5_4():
     assert ir.min_separation(exp) == pytest.approx(0.8 / math.sqrt(2), rel=1e-6)
     assert ir.code_conflicts(exp) == []
     _assert_decodable(exp)
-    u11 = ir.unique11_layout()
+    u11 = ir_world.unique11_layout()
     assert bool(np.all(u11.unique)) and len(set(ir.layout_names(u11))) == 11
     np.testing.assert_array_equal(np.asarray(u11.positions), np.asarray(exp.positions))
     assert ir.code_conflicts(u11) == []
@@ -165,7 +166,7 @@ def test_experiment_and_unique11_layouts_of_section_5_4():
 
 
 def test_without_emitters_for_failure_experiments():
-    exp = ir.experiment_layout()
+    exp = ir_world.experiment_layout()
     # [W] §5.4.5: two emitters of the same ID lose power
     same = [i for i, n in enumerate(ir.layout_names(exp)) if n == "4"]
     assert len(same) == 2
@@ -283,9 +284,9 @@ def test_belief_matches_brute_force_on_lattice():
         (lambda: ir.lattice_layout(14, 14), "use a smaller lattice"),
         (lambda: ir.lattice_layout(1, 5), "at least 2"),
         (lambda: ir.lattice_layout(repeated_codes=(1, 2, 3)), "at least 4"),
-        (lambda: ir.experiment_layout(pitch=0.0), "pitch"),
-        (lambda: ir.without_emitters(ir.experiment_layout(), [11]), "out of range"),
-        (lambda: ir.without_emitters(ir.experiment_layout(), range(11)), "every emitter"),
+        (lambda: ir_world.experiment_layout(pitch=0.0), "pitch"),
+        (lambda: ir.without_emitters(ir_world.experiment_layout(), [11]), "out of range"),
+        (lambda: ir.without_emitters(ir_world.experiment_layout(), range(11)), "every emitter"),
         (lambda: ir.fit_voltage_model([0.0, 10.0], [1.0, 0.9]), "at least 3"),
         (lambda: ir.fit_voltage_model([0.0, 10.0, 20.0], [1.0, np.nan, 0.9]), "NaN"),
         (lambda: ir.fit_voltage_model([0.0, 10.0, 20.0], [1.0, 0.9]), "shape"),

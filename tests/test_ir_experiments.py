@@ -1,4 +1,4 @@
-"""[W] §5.4's IR experiments (jaxnav.experiments.ir_positioning) and the drives they use.
+"""[W] §5.4's IR experiments (jaxnav.experiments.ir) and the drives they use.
 
 The quick variant of each of the five experiments runs end to end in one module fixture
 (R = 2 seeded runs per row; rows of one drive kind share one compilation). The checks are the
@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxnav.experiments import ir_positioning as xp
 from jaxnav.experiments import registry
+from jaxnav.experiments.ir import positioning as xp
 from jaxnav.models import ir
 from jaxnav.sim import ir_world
 
@@ -73,7 +73,7 @@ def test_odometry_reads_zero_while_the_robot_stands():
     noisy while it moves."""
     spots = ir_world.spot_grid(2, 1, x=(0.6, 1.0), y=(0.8, 0.8))
     tour = ir_world.spot_tour(spots, 0.2, 0.1, 2.0)
-    sim = ir_world.simulate(jax.random.PRNGKey(0), ir.experiment_layout(), tour.poses, 0.1)
+    sim = ir_world.simulate(jax.random.PRNGKey(0), ir_world.experiment_layout(), tour.poses, 0.1)
     u = np.asarray(sim.controls)[:, :3]
     still = np.all(np.asarray(sim.true_controls)[:, :3] == 0.0, axis=1)
     assert still.sum() > 30 and (~still).sum() > 10

@@ -31,7 +31,7 @@ def _err(est, truth):
 
 @pytest.fixture(scope="module")
 def layout():
-    return ir.experiment_layout()
+    return ir_world.experiment_layout()
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def drives(layout, setup):
             sim = ir_world.simulate(jax.random.PRNGKey(seed), layout, main, DT, ir_receiver.default_params(height=h))
             state0 = ir_mcl.init(jax.random.PRNGKey(1000 + seed), config, params, area)
             final, trace = ir_mcl.run(
-                jax.random.PRNGKey(2000 + seed), config, params, sim.controls, sim.detections, state0
+                jax.random.PRNGKey(2000 + seed), state0, config, params, sim.controls, sim.detections
             )
             odo = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
             out[seed, h] = dict(
@@ -173,7 +173,7 @@ def test_no_correction_before_the_first_unique_id(layout, setup):
 
     # the whole run (same keys through run): started exactly from t0 on, and it localises
     _, trace = ir_mcl.run(
-        key, config, params, sim.controls, sim.detections, ir_mcl.init(jax.random.PRNGKey(9), config, params, area)
+        key, ir_mcl.init(jax.random.PRNGKey(9), config, params, area), config, params, sim.controls, sim.detections
     )
     np.testing.assert_array_equal(np.asarray(trace.started), np.arange(T) >= t0)
     assert int(np.argmax(np.asarray(trace.reinitialised))) == t0
@@ -204,7 +204,7 @@ def test_a_corrupted_voltage_model_is_worse_negative_control(drives, layout, set
     d = drives[0, 1.2]
     bad = params._replace(voltage=params.voltage._replace(c0=params.voltage.c0 - 0.6))
     bad = bad._replace(detection_range=ir_mcl.model_range(bad.voltage))
-    _, trace = ir_mcl.run(jax.random.PRNGKey(2000), config, bad, d["sim"].controls, d["sim"].detections, d["state0"])
+    _, trace = ir_mcl.run(jax.random.PRNGKey(2000), d["state0"], config, bad, d["sim"].controls, d["sim"].detections)
     assert _err(trace.estimate, d["sim"].true_poses)[LATE].mean() > 1.5 * d["err"][LATE].mean()
 
 
@@ -252,7 +252,7 @@ def test_model_range_is_the_zero_of_eq_5_3():
         ),
         (
             lambda c, p, s, d: ir_mcl.run(
-                jax.random.PRNGKey(0), c, p, jnp.zeros((5, 4)), jax.tree.map(lambda a: jnp.stack([a] * 4), d), s
+                jax.random.PRNGKey(0), s, c, p, jnp.zeros((5, 4)), jax.tree.map(lambda a: jnp.stack([a] * 4), d)
             ),
             "detections",
         ),

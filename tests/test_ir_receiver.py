@@ -9,6 +9,7 @@ import pytest
 
 from jaxnav.models import ir
 from jaxnav.sim import ir_receiver as rx
+from jaxnav.sim import ir_world
 
 W = ir.W_VOLTAGE_MODEL
 CFG = rx.DEFAULT_CONFIG
@@ -116,7 +117,7 @@ def test_waveform_is_an_ook_square_wave_and_reads_back_exactly(params, sim):
 
 def _emitter_types():
     sets = {(c,) for c in ir.CODES}
-    for lay in (ir.experiment_layout(), ir.unique11_layout(), ir.lattice_layout()):
+    for lay in (ir_world.experiment_layout(), ir_world.unique11_layout(), ir.lattice_layout()):
         sets |= {ir.from_mask(int(m)) for m in np.asarray(lay.masks)}
     sets |= {(1, 2, 3), (4, 7, 9), (2, 5, 8, 9), (1, 3, 5, 7, 9), tuple(ir.CODES)}
     return sorted(sets, key=lambda s: (len(s), s))
@@ -195,8 +196,8 @@ def _random_windows(layout, params, sim, seed, n=1500):
 @pytest.mark.parametrize("name", ["experiment", "unique11", "lattice4x2"])
 def test_no_wrong_emitter_over_random_windows(params, sim, name):
     layout = {
-        "experiment": ir.experiment_layout(),
-        "unique11": ir.unique11_layout(),
+        "experiment": ir_world.experiment_layout(),
+        "unique11": ir_world.unique11_layout(),
         "lattice4x2": ir.lattice_layout(4, 2),
     }[name]
     assert layout.num_emitters == 11  # one compiled function serves all three
@@ -215,7 +216,7 @@ def test_no_wrong_emitter_over_random_windows(params, sim, name):
 def test_negative_control_a_layout_breaking_the_rules_gives_wrong_emitters(params, sim):
     """Unique ``12`` 0.3 m from repeated ``1`` (rule (ii) broken): where both are in range the
     two 100 Hz waves can cancel, leaving code 2 alone — repeated ID ``2``, an emitter 0.65 m away."""
-    base = ir.experiment_layout()
+    base = ir_world.experiment_layout()
     pos = np.asarray(base.positions, np.float64).copy()
     names = ir.layout_names(base)
     pos[8] = [0.7, 0.4]
@@ -274,7 +275,7 @@ def test_refit_of_the_physical_sweep(params):
 def test_grad_of_simulated_voltage_matches_finite_differences():
     with jax.enable_x64(True):
         p64 = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), rx.default_params())
-        layout = ir.experiment_layout()
+        layout = ir_world.experiment_layout()
         pose = jnp.array([0.55, 0.33, 0.4], jnp.float64)
         key = jax.random.PRNGKey(0)
         mask = ir.to_mask(1)
@@ -330,7 +331,7 @@ def test_grad_of_simulated_voltage_matches_finite_differences():
         (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), height=0.0), "height"),
         (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), code=10), "codebook"),
         (lambda: rx.calibration_sweep(jax.random.PRNGKey(0), rx.default_params(), offsets_mm=[-10.0]), "offsets_mm"),
-        (lambda: rx.received_voltage(jnp.zeros(2), ir.experiment_layout(), rx.default_params()), "pose"),
+        (lambda: rx.received_voltage(jnp.zeros(2), ir_world.experiment_layout(), rx.default_params()), "pose"),
         (lambda: rx.decode(jnp.zeros((2, 199)), rx.default_params()), "waveform"),
         (
             lambda: rx.received_voltage(

@@ -15,6 +15,7 @@ from jaxnav.localization import kld_mcl as kld
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
 
 START = jnp.asarray([5.0, 1.5, 0.0])
 N_MAX = 3000
@@ -39,11 +40,11 @@ def _global_run(seed):
     """Global localization in the demo's 10 m room (8 landmarks), uniform start, dark first steps."""
     config, params = _setting()
     k_sim, k_init, k_run = jax.random.split(jax.random.PRNGKey(seed), 3)
-    controls = world.loop_controls(STEPS, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(STEPS, 0.5, 0.21, 0.25)
     sim = world.simulate(k_sim, params.landmarks, START, controls, params.motion, SENSOR)
     obs = sim.observations._replace(mask=sim.observations.mask.at[:DARK].set(False))
     state = kld.init_uniform(k_init, config, params, (0.0, 10.0, 0.0, 10.0))
-    final, trace = kld.run(k_run, config, params, controls, obs, state)
+    final, trace = kld.run(k_run, state, config, params, controls, obs)
     return dict(
         config=config,
         params=params,
@@ -217,31 +218,22 @@ def test_run_equals_a_loop_of_steps_with_fold_in_keys():
         np.testing.assert_allclose(info.estimate, r["trace"].estimate[t], atol=1e-4)
 
 
-def test_no_retrace_between_calls_with_the_same_shapes(monkeypatch):
+def test_no_retrace_between_calls_with_the_same_shapes():
     """``run`` traces the step once per (config, shapes); new data, keys, params and a
     different starting count reuse the compiled scan."""
-    traces = []
-    original = kld._step
-
-    def counting_step(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(kld, "_step", counting_step)
+    before = kld.run.trace_count()
     r0, r1 = _global_run(0), _global_run(1)
     config, params = _setting(n_max=211, min_particles=20)  # a config no other test compiled
     cut = lambda x: x[:6]  # noqa: E731
     state = kld.init_uniform(jax.random.PRNGKey(0), config, params, (0.0, 10.0, 0.0, 10.0))
-    kld.run(jax.random.PRNGKey(0), config, params, r0["controls"][:6], jax.tree_util.tree_map(cut, r0["obs"]), state)
-    assert len(traces) == 1
-    cache = kld._run_jit._cache_size()
+    kld.run(jax.random.PRNGKey(0), state, config, params, r0["controls"][:6], jax.tree_util.tree_map(cut, r0["obs"]))
+    assert kld.run.trace_count() == before + 1
     params2 = params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1])))
     state2 = kld.init(jax.random.PRNGKey(1), config, params2, START, jnp.full((3,), 0.2))._replace(
         num_active=jnp.int32(50)
     )
-    kld.run(jax.random.PRNGKey(1), config, params2, r1["controls"][:6], jax.tree_util.tree_map(cut, r1["obs"]), state2)
-    assert len(traces) == 1
-    assert kld._run_jit._cache_size() == cache
+    kld.run(jax.random.PRNGKey(1), state2, config, params2, r1["controls"][:6], jax.tree_util.tree_map(cut, r1["obs"]))
+    assert kld.run.trace_count() == before + 1
 
 
 def test_active_mask_property():
@@ -282,7 +274,7 @@ def test_bad_state_and_params_are_refused_with_the_argument_named():
     controls, obs = r["controls"][:3], jax.tree_util.tree_map(lambda x: x[:3], r["obs"])
     key = jax.random.PRNGKey(0)
     state = kld.init(key, config, params, START)
-    run = lambda s=state, p=params: kld.run(key, config, p, controls, obs, s)  # noqa: E731
+    run = lambda s=state, p=params: kld.run(key, s, config, p, controls, obs)  # noqa: E731
     with pytest.raises(ValueError, match=r"state.num_active must be in \[1, 64\]"):
         run(s=state._replace(num_active=jnp.int32(0)))
     with pytest.raises(ValueError, match=r"state.num_active must be in \[1, 64\]"):

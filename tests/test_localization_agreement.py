@@ -14,6 +14,7 @@ from jaxnav.localization import ekf, grid, mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as lw
+from jaxnav.sim import trajectories
 
 CENTRE = jnp.asarray([[5.0, 5.0]])
 LANDMARKS = jnp.concatenate([lw.square_room_landmarks(10.0, 8), CENTRE])  # id 8 at the room centre
@@ -33,15 +34,17 @@ def test_ekf_mcl_and_grid_agree_on_a_unimodal_problem(getkey):
     """From a known start with all landmarks in view the three beliefs are unimodal and agree:
     MCL (2000 particles) within 5 cm of the EKF on average, the grid within one cell (0.25 m;
     its estimate is quantised to cell centres, RMS ≈ 0.41 cell, see tests/test_grid.py)."""
-    u = lw.loop_controls(60, 0.3, 0.1, 0.25)
+    u = trajectories.loop_controls(60, 0.3, 0.1, 0.25)
     sim = lw.simulate(getkey(), LANDMARKS, START, u, NOISE, SENSOR)
     p = ekf.KalmanParams(NOISE, SENSOR, LANDMARKS)
-    e = ekf.run(ekf.EKFConfig(), p, u, sim.observations, ekf.init(ekf.EKFConfig(), p, START, jnp.diag(SPREAD**2)))[1]
+    e = ekf.run(
+        None, ekf.init(None, ekf.EKFConfig(), p, START, jnp.diag(SPREAD**2)), ekf.EKFConfig(), p, u, sim.observations
+    )[1]
     cfg = mcl.MCLConfig(num_particles=2000, ess_threshold=0.5)
     mp = mcl.MCLParams(NOISE, SENSOR, LANDMARKS)
-    m = mcl.run(getkey(), cfg, mp, u, sim.observations, mcl.init(getkey(), cfg, mp, START, SPREAD))[1]
+    m = mcl.run(getkey(), mcl.init(getkey(), cfg, mp, START, SPREAD), cfg, mp, u, sim.observations)[1]
     gp = grid.GridParams(NOISE, SENSOR, LANDMARKS)
-    g = grid.run(GRID, gp, u, sim.observations, grid.init(GRID, gp, START, SPREAD))[1]
+    g = grid.run(None, grid.init(None, GRID, gp, START, SPREAD), GRID, gp, u, sim.observations)[1]
     assert _errors(e.estimate, sim.true_poses).mean() < 0.06
     assert _errors(m.estimate, e.estimate).mean() < 0.05
     assert _errors(g.estimate, e.estimate).mean() < 0.25
@@ -75,7 +78,7 @@ def test_symmetric_start_is_resolved_by_mcl_and_grid_not_by_the_ekf(seed):
     key = jax.random.PRNGKey(seed)
     k_sim, k_a, k_b, k_run1, k_run2 = jax.random.split(key, 5)
     t1 = 40
-    u = lw.loop_controls(2 * t1, 0.3, 0.1, 0.25)
+    u = trajectories.loop_controls(2 * t1, 0.3, 0.1, 0.25)
     sim = lw.simulate(k_sim, LANDMARKS, START, u, NOISE, SENSOR)
     ids = jnp.arange(LANDMARKS.shape[0])
     mask = sim.observations.mask
@@ -92,21 +95,21 @@ def test_symmetric_start_is_resolved_by_mcl_and_grid_not_by_the_ekf(seed):
     a = mcl.init(k_a, cfg, mp, START, SPREAD)
     b = mcl.init(k_b, cfg, mp, MIRROR, SPREAD)
     s0 = a._replace(particles=jnp.concatenate([a.particles[:1000], b.particles[1000:]]))
-    s1, _ = mcl.run(k_run1, cfg, mp, first(u), jax.tree_util.tree_map(first, obs), s0)
+    s1, _ = mcl.run(k_run1, s0, cfg, mp, first(u), jax.tree_util.tree_map(first, obs))
     probs = np.exp(np.asarray(s1.log_weights))
     pts = np.asarray(s1.particles)
     _assert_two_modes(pts, probs, truth_mid, mirror_mid)
-    _, m2 = mcl.run(k_run2, cfg, mp, second(u), jax.tree_util.tree_map(second, obs), s1)
+    _, m2 = mcl.run(k_run2, s1, cfg, mp, second(u), jax.tree_util.tree_map(second, obs))
 
     # grid: the same two-mode prior as a log-belief
     gp = grid.GridParams(NOISE, SENSOR, LANDMARKS)
-    g0 = grid.init(GRID, gp, START, SPREAD)
-    g0 = g0._replace(log_belief=jnp.logaddexp(g0.log_belief, grid.init(GRID, gp, MIRROR, SPREAD).log_belief))
-    g1, _ = grid.run(GRID, gp, first(u), jax.tree_util.tree_map(first, obs), g0)
+    g0 = grid.init(None, GRID, gp, START, SPREAD)
+    g0 = g0._replace(log_belief=jnp.logaddexp(g0.log_belief, grid.init(None, GRID, gp, MIRROR, SPREAD).log_belief))
+    g1, _ = grid.run(None, g0, GRID, gp, first(u), jax.tree_util.tree_map(first, obs))
     belief = np.exp(np.asarray(g1.log_belief)).sum(axis=2)  # [nx, ny] position marginal
     cells = np.asarray(grid.cell_centres(GRID))[:, :, 0, :2].reshape(-1, 2)
     _assert_two_modes(cells, belief.ravel(), truth_mid, mirror_mid)
-    _, gtr = grid.run(GRID, gp, second(u), jax.tree_util.tree_map(second, obs), g1)
+    _, gtr = grid.run(None, g1, GRID, gp, second(u), jax.tree_util.tree_map(second, obs))
 
     # EKF from the Gaussian moment-matched to the two-mode prior
     d = np.asarray(START - MIRROR)
@@ -114,7 +117,7 @@ def test_symmetric_start_is_resolved_by_mcl_and_grid_not_by_the_ekf(seed):
     cov[0, 1] = cov[1, 0] = d[0] * d[1] / 4
     mean = (0.5 * (START + MIRROR)).at[2].set(0.3 - math.pi / 2)
     p = ekf.KalmanParams(NOISE, SENSOR, LANDMARKS)
-    e = ekf.run(ekf.EKFConfig(), p, u, obs, ekf.init(ekf.EKFConfig(), p, mean, jnp.asarray(cov)))[1]
+    e = ekf.run(None, ekf.init(None, ekf.EKFConfig(), p, mean, jnp.asarray(cov)), ekf.EKFConfig(), p, u, obs)[1]
     assert _errors(e.estimate[t1 - 1], sim.true_poses[t1 - 1]) > 1.0
 
     end = slice(-10, None)

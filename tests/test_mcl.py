@@ -13,6 +13,7 @@ from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
 
 START = jnp.asarray([5.0, 1.5, 0.0])
 
@@ -21,7 +22,7 @@ def _setting(n=300, steps=30, **config_kw):
     config, params = demo_setting(n)
     if config_kw:
         config = mcl.MCLConfig(num_particles=n, **config_kw)
-    controls = world.loop_controls(steps, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(steps, 0.5, 0.21, 0.25)
     sim = world.simulate(jax.random.PRNGKey(10), params.landmarks, START, controls, params.motion, params.sensor)
     state = mcl.init(jax.random.PRNGKey(11), config, params, START, jnp.asarray([0.3, 0.3, 0.1]))
     return config, params, sim, state
@@ -38,7 +39,7 @@ def test_demo_converges_below_20_cm_after_50_steps(seed):
 def test_run_equals_a_loop_of_steps_with_fold_in_keys():
     config, params, sim, state = _setting(steps=8)
     key = jax.random.PRNGKey(3)
-    final, trace = mcl.run(key, config, params, sim.controls, sim.observations, state)
+    final, trace = mcl.run(key, state, config, params, sim.controls, sim.observations)
     s = state
     for t in range(8):
         obs_t = jax.tree_util.tree_map(lambda x: x[t], sim.observations)
@@ -49,9 +50,9 @@ def test_run_equals_a_loop_of_steps_with_fold_in_keys():
 
 def test_same_key_is_bitwise_identical_and_different_keys_differ():
     config, params, sim, state = _setting()
-    a = mcl.run(jax.random.PRNGKey(5), config, params, sim.controls, sim.observations, state)
-    b = mcl.run(jax.random.PRNGKey(5), config, params, sim.controls, sim.observations, state)
-    c = mcl.run(jax.random.PRNGKey(6), config, params, sim.controls, sim.observations, state)
+    a = mcl.run(jax.random.PRNGKey(5), state, config, params, sim.controls, sim.observations)
+    b = mcl.run(jax.random.PRNGKey(5), state, config, params, sim.controls, sim.observations)
+    c = mcl.run(jax.random.PRNGKey(6), state, config, params, sim.controls, sim.observations)
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
         np.testing.assert_array_equal(x, y)
     assert not np.array_equal(a[0].particles, c[0].particles)
@@ -63,7 +64,7 @@ def test_runs_under_jit_and_vmap_over_runs():
     def one_run(key):
         k_init, k_run = jax.random.split(key)
         s0 = mcl.init(k_init, config, params, START, jnp.asarray([0.3, 0.3, 0.1]))
-        _, trace = mcl.run(k_run, config, params, sim.controls, sim.observations, s0)
+        _, trace = mcl.run(k_run, s0, config, params, sim.controls, sim.observations)
         return trace.estimate
 
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
@@ -75,25 +76,16 @@ def test_runs_under_jit_and_vmap_over_runs():
     assert np.all(err < 0.2)
 
 
-def test_no_retrace_between_calls_with_the_same_shapes(monkeypatch):
+def test_no_retrace_between_calls_with_the_same_shapes():
     """``run`` traces the step exactly once per (config, shapes); new data or keys reuse it."""
-    traces = []
-    original = mcl._step
-
-    def counting_step(*args, **kwargs):
-        traces.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(mcl, "_step", counting_step)
+    before = mcl.run.trace_count()
     config, params, sim, state = _setting(n=37, steps=6)  # a config no other test compiled
-    mcl.run(jax.random.PRNGKey(0), config, params, sim.controls, sim.observations, state)
-    assert len(traces) == 1  # scan traces its body once
-    cache_after_first = mcl._run_jit._cache_size()
+    mcl.run(jax.random.PRNGKey(0), state, config, params, sim.controls, sim.observations)
+    assert mcl.run.trace_count() == before + 1  # scan traces its body once
     other = world.simulate(jax.random.PRNGKey(99), params.landmarks, START, sim.controls, params.motion, params.sensor)
     params2 = params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.2, 0.1])))
-    mcl.run(jax.random.PRNGKey(1), config, params2, other.controls, other.observations, state)
-    assert len(traces) == 1
-    assert mcl._run_jit._cache_size() == cache_after_first
+    mcl.run(jax.random.PRNGKey(1), state, config, params2, other.controls, other.observations)
+    assert mcl.run.trace_count() == before + 1
 
 
 def test_masked_and_out_of_map_observations_are_ignored_and_counted():
@@ -110,8 +102,8 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
         jnp.concatenate([obs.mask, extra_mask], 1),
     )
     key = jax.random.PRNGKey(2)
-    _, ref = mcl.run(key, config, params, sim.controls, obs, state)
-    _, got = mcl.run(key, config, params, sim.controls, padded, state)
+    _, ref = mcl.run(key, state, config, params, sim.controls, obs)
+    _, got = mcl.run(key, state, config, params, sim.controls, padded)
     np.testing.assert_allclose(got.estimate, ref.estimate, atol=1e-5)
     np.testing.assert_array_equal(got.num_ignored, np.ones(5))
     np.testing.assert_array_equal(ref.num_ignored, np.zeros(5))
@@ -120,7 +112,7 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
 def test_no_observations_leaves_weights_alone_and_filter_keeps_running():
     config, params, sim, state = _setting(steps=5, motion_model="velocity", ess_threshold=0.5)
     empty = sim.observations._replace(mask=jnp.zeros_like(sim.observations.mask))
-    final, trace = mcl.run(jax.random.PRNGKey(0), config, params, sim.controls, empty, state)
+    final, trace = mcl.run(jax.random.PRNGKey(0), state, config, params, sim.controls, empty)
     np.testing.assert_allclose(trace.log_likelihood, 0.0, atol=1e-5)
     assert not np.any(trace.resampled)
     assert np.all(np.isfinite(final.particles))
@@ -129,7 +121,7 @@ def test_no_observations_leaves_weights_alone_and_filter_keeps_running():
 def test_degenerate_weights_are_reset_and_flagged_never_nan():
     config, params, sim, state = _setting(steps=3)
     bad = sim.observations._replace(z=sim.observations.z.at[1].set(jnp.nan))  # unmasked NaN at step 1
-    final, trace = mcl.run(jax.random.PRNGKey(0), config, params, sim.controls, bad, state)
+    final, trace = mcl.run(jax.random.PRNGKey(0), state, config, params, sim.controls, bad)
     np.testing.assert_array_equal(trace.degenerate, [False, True, False])
     assert trace.log_likelihood[1] == -np.inf
     # ESS of a degenerate step is 0 (weights.step_ess), as weights.ess says of all −inf log-weights
@@ -140,7 +132,7 @@ def test_degenerate_weights_are_reset_and_flagged_never_nan():
 
 def test_ess_conditional_resampling_and_gaussian_refresh_options():
     config, params, sim, state = _setting(steps=20, ess_threshold=0.5, resampling="stratified", gaussian_refresh=True)
-    final, trace = mcl.run(jax.random.PRNGKey(0), config, params, sim.controls, sim.observations, state)
+    final, trace = mcl.run(jax.random.PRNGKey(0), state, config, params, sim.controls, sim.observations)
     assert np.all(np.isfinite(final.particles))
     assert 0 < int(trace.resampled.sum()) <= 20
     err = np.linalg.norm(np.asarray(trace.estimate[-1, :2] - sim.true_poses[-1, :2]))
@@ -149,10 +141,10 @@ def test_ess_conditional_resampling_and_gaussian_refresh_options():
 
 def test_global_localization_from_uniform_prior():
     config, params = demo_setting(20000)
-    controls = world.loop_controls(30, 0.5, 0.21, 0.25)
+    controls = trajectories.loop_controls(30, 0.5, 0.21, 0.25)
     sim = world.simulate(jax.random.PRNGKey(4), params.landmarks, START, controls, params.motion, params.sensor)
     state = mcl.init_uniform(jax.random.PRNGKey(5), config, params, (0.0, 10.0, 0.0, 10.0))
-    _, trace = mcl.run(jax.random.PRNGKey(6), config, params, sim.controls, sim.observations, state)
+    _, trace = mcl.run(jax.random.PRNGKey(6), state, config, params, sim.controls, sim.observations)
     err = np.linalg.norm(np.asarray(trace.estimate[-10:, :2] - sim.true_poses[-10:, :2]), axis=-1)
     assert err.max() < 0.2
 
@@ -161,7 +153,7 @@ def test_float64_is_preserved():
     with jax.enable_x64(True):
         config, params = demo_setting(100)
         params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), params)
-        controls = jnp.asarray(world.loop_controls(4), jnp.float64)
+        controls = jnp.asarray(trajectories.loop_controls(4), jnp.float64)
         sim = world.simulate(
             jax.random.PRNGKey(0),
             params.landmarks,
@@ -171,7 +163,7 @@ def test_float64_is_preserved():
             params.sensor,
         )
         state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START, jnp.float64), jnp.full((3,), 0.1))
-        final, trace = mcl.run(jax.random.PRNGKey(2), config, params, sim.controls, sim.observations, state)
+        final, trace = mcl.run(jax.random.PRNGKey(2), state, config, params, sim.controls, sim.observations)
         assert final.particles.dtype == jnp.float64
         assert trace.estimate.dtype == jnp.float64
 
@@ -198,7 +190,7 @@ def test_bad_config_is_refused(kwargs, match):
 def test_bad_params_and_inputs_are_refused_with_the_argument_named():
     config, params, sim, state = _setting(steps=3)
     key = jax.random.PRNGKey(0)
-    run = lambda p=params, c=sim.controls, o=sim.observations, s=state: mcl.run(key, config, p, c, o, s)  # noqa: E731
+    run = lambda p=params, c=sim.controls, o=sim.observations, s=state: mcl.run(key, s, config, p, c, o)  # noqa: E731
     with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
         run(p=params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, 0.0]))))
     with pytest.raises(ValueError, match="motion noise pose_sd must be finite and non-negative"):
@@ -223,7 +215,7 @@ def test_masked_observation_inside_jit_keeps_running():
     """Inside the user's own jit the host checks are skipped; masks still work."""
     config, params, sim, state = _setting(steps=4)
     obs = sim.observations._replace(mask=sim.observations.mask.at[:, :4].set(False))
-    f = jax.jit(lambda k, o: mcl.run(k, config, params, sim.controls, o, state)[1].estimate)
+    f = jax.jit(lambda k, o: mcl.run(k, state, config, params, sim.controls, o)[1].estimate)
     est = f(jax.random.PRNGKey(0), obs)
     assert np.all(np.isfinite(est))
     assert math.isfinite(float(np.linalg.norm(np.asarray(est[-1, :2] - sim.true_poses[-1, :2]))))

@@ -32,6 +32,12 @@ def test_aligned_error_of_noisy_map_and_mask():
     assert float(err.aligned_rmse) <= float(err.rmse) < 0.2
 
 
+def test_a_map_with_nothing_to_score_has_nan_errors_not_zero():
+    truth = np.zeros((4, 2))
+    err = metrics.map_errors(truth + 1.0, truth, np.zeros(4, bool))
+    assert np.isnan(float(err.rmse)) and np.isnan(float(err.aligned_rmse))
+
+
 def test_reflection_is_not_allowed():
     """A mirrored map cannot be aligned by a rotation (det R = +1)."""
     truth = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 2.0], [3.0, 3.0]])

@@ -310,18 +310,16 @@ def test_bad_detections_and_capacity_are_refused():
         pf_slam.check_capacity(config, 11)
     with pytest.raises(ValueError, match="same number of steps"):
         dets = jax.tree_util.tree_map(lambda x: jnp.stack([x] * 3), _det([(1, 0)]))
-        pf_slam.run(jax.random.PRNGKey(1), config, params, jnp.stack([STILL] * 2), dets, state)
+        pf_slam.run(jax.random.PRNGKey(1), state, config, params, jnp.stack([STILL] * 2), dets)
 
 
-def test_params_are_checked_once_per_object_and_numpy_params_at_every_call():
-    """An online loop passes one immutable params object at every step: it is validated once.
-    Params with NumPy leaves can change in place, so they are validated at every call."""
-    from jaxnav.slam import _tag_slam
-
+def test_params_are_checked_once_per_value_and_numpy_params_changed_in_place_again():
+    """An online loop passes the same params at every step: they are validated once per value
+    (:mod:`jaxnav.core.filter`), never by object identity, so a NumPy leaf changed in place
+    after a valid call is checked again, and PS-SLAM refuses PF-SLAM's params it has never seen."""
     config = _pf(max_tags=10)
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
-    assert _tag_slam._LAST_VALID_PARAMS[0] is params
     state, _ = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(1, 0)]))
     bad = pf_slam.PFSLAMParams(NO_NOISE, SENSOR._replace(half_width=jnp.asarray(-1.0)))
     with pytest.raises(ValueError, match="half_width"):
@@ -329,10 +327,12 @@ def test_params_are_checked_once_per_object_and_numpy_params_at_every_call():
     sd = np.zeros(3, np.float32)
     mutable = pf_slam.PFSLAMParams(OmniNoise(sd), SENSOR)
     state, _ = pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))
-    assert _tag_slam._LAST_VALID_PARAMS[0] is not mutable
     sd[0] = np.nan  # changed in place after a valid call
     with pytest.raises(ValueError):
         pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))
+    ps_config = ps_slam.PSSLAMConfig(num_particles=config.num_particles, num_tag_particles=4, max_tags=10, lag=2)
+    with pytest.raises(ValueError, match="PSSLAMParams"):
+        ps_slam.init(jax.random.PRNGKey(0), ps_config, params, np.zeros(3))
 
 
 def _slot_sequence():
@@ -377,7 +377,7 @@ def test_parallel_slots_filter_like_all_slots(module, lanes):
     for slots in (None, lanes):
         config, params = _slot_filter(module, slots)
         state = module.init(jax.random.PRNGKey(0), config, params, jnp.asarray([0.5, 0.5, 0.0]))
-        outs.append(module.run(jax.random.PRNGKey(1), config, params, controls, det, state))
+        outs.append(module.run(jax.random.PRNGKey(1), state, config, params, controls, det))
     (want_state, want), (got_state, got) = outs
     for a, b in zip(jax.tree_util.tree_leaves((got_state, got)), jax.tree_util.tree_leaves((want_state, want))):
         if jnp.issubdtype(a.dtype, jnp.floating):
@@ -403,7 +403,7 @@ def test_parallel_slots_keep_the_derivatives_of_all_slots():
         def f(log_beta, motion_sd):
             p = params._replace(sensor=params.sensor._replace(log_beta=log_beta), motion=OmniNoise(motion_sd))
             state = module.init(jax.random.PRNGKey(0), config, p, jnp.asarray([0.5, 0.5, 0.0]))
-            return jnp.sum(module.run(jax.random.PRNGKey(1), config, p, controls, det, state)[1].log_likelihood)
+            return jnp.sum(module.run(jax.random.PRNGKey(1), state, config, p, controls, det)[1].log_likelihood)
 
         return f
 

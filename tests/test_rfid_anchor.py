@@ -75,7 +75,7 @@ def test_localises_from_a_uniform_start(weighting, sigma, bound):
     for seed in (0, 1):
         truth, controls, reads = _world(seed)
         s0 = ra.init(jax.random.PRNGKey(10 + seed), cfg, params)
-        _, tr = ra.run(jax.random.PRNGKey(20 + seed), cfg, params, controls, reads, s0)
+        _, tr = ra.run(jax.random.PRNGKey(20 + seed), s0, cfg, params, controls, reads)
         pos, head = _errors(tr, truth)
         late = slice(3 * T // 4, T)
         assert pos[late].mean() < bound, (weighting, seed, pos[late].mean())
@@ -90,7 +90,7 @@ def test_step_loop_equals_run():
     s0 = ra.init(jax.random.PRNGKey(1), cfg, params)
     key = jax.random.PRNGKey(2)
     short = jax.tree.map(lambda x: x[:8], reads)
-    final, trace = ra.run(key, cfg, params, controls[:8], short, s0)
+    final, trace = ra.run(key, s0, cfg, params, controls[:8], short)
     state = s0
     for t in range(8):
         state, info = ra.step(
@@ -129,6 +129,6 @@ def test_bad_input_is_refused():
     _, controls, reads = _world()
     s0 = ra.init(jax.random.PRNGKey(0), cfg, params)
     with pytest.raises(ValueError, match="one slot per anchor"):
-        ra.run(jax.random.PRNGKey(0), cfg, params, controls, jax.tree.map(lambda x: x[:, :3], reads), s0)
+        ra.run(jax.random.PRNGKey(0), s0, cfg, params, controls, jax.tree.map(lambda x: x[:, :3], reads))
     with pytest.raises(ValueError, match="RSSI"):
-        ra.run(jax.random.PRNGKey(0), cfg, params, controls, reads._replace(rssi=reads.rssi.at[0, 0].set(-1.0)), s0)
+        ra.run(jax.random.PRNGKey(0), s0, cfg, params, controls, reads._replace(rssi=reads.rssi.at[0, 0].set(-1.0)))

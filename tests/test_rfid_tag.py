@@ -66,7 +66,7 @@ def traces(params):
         for seed in range(3):
             reads = _reads(jax.random.PRNGKey(seed), TAGS[0], OFFSETS[0])
             s0 = rt.init(jax.random.PRNGKey(100 + seed), cfg, params)
-            out[w, seed] = rt.run(jax.random.PRNGKey(200 + seed), cfg, params, reads, s0)[1]
+            out[w, seed] = rt.run(jax.random.PRNGKey(200 + seed), s0, cfg, params, reads)[1]
     return out
 
 
@@ -106,7 +106,7 @@ def test_step_loop_equals_run(params):
     reads = jax.tree.map(lambda x: x[:12], _reads(jax.random.PRNGKey(5), TAGS[1], OFFSETS[1]))
     s0 = rt.init(jax.random.PRNGKey(6), cfg, params)
     key = jax.random.PRNGKey(7)
-    final, trace = rt.run(key, cfg, params, reads, s0)
+    final, trace = rt.run(key, s0, cfg, params, reads)
     state = s0
     for t in range(12):
         state, info = rt.step(jax.random.fold_in(key, t), state, cfg, params, jax.tree.map(lambda x: x[t], reads))
@@ -171,7 +171,7 @@ def test_run_tags_vmaps_over_tags_like_separate_runs(params):
     for g in range(3):
         k_g = jax.random.fold_in(key, g)
         s0 = rt.init(jax.random.fold_in(k_g, 2**31 - 1), cfg, params)
-        _, alone = rt.run(k_g, cfg, params, reads[g], s0)
+        _, alone = rt.run(k_g, s0, cfg, params, reads[g])
         np.testing.assert_allclose(
             np.asarray(traces.estimate[g, 0]), np.asarray(alone.estimate[0]), rtol=1e-4, atol=1e-4
         )
@@ -187,7 +187,7 @@ def test_run_composes_with_jit_and_vmap_over_seeds(params):
     short = jax.tree.map(lambda x: x[:5], reads)
 
     def one(key):
-        return rt.run(key, cfg, params, short, rt.init(jax.random.fold_in(key, 1), cfg, params))[1].estimate
+        return rt.run(key, rt.init(jax.random.fold_in(key, 1), cfg, params), cfg, params, short)[1].estimate
 
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     batched = jax.jit(jax.vmap(one))(keys)
@@ -204,7 +204,7 @@ def test_2d_keeps_the_known_height_and_is_more_accurate(params, traces):
     for seed in range(3):
         reads = _reads(jax.random.PRNGKey(seed), TAGS[0], OFFSETS[0])
         final, tr = rt.run(
-            jax.random.PRNGKey(200 + seed), cfg, p2, reads, rt.init(jax.random.PRNGKey(100 + seed), cfg, p2)
+            jax.random.PRNGKey(200 + seed), rt.init(jax.random.PRNGKey(100 + seed), cfg, p2), cfg, p2, reads
         )
         np.testing.assert_allclose(np.asarray(final.particles[:, 2]), TAGS[0, 2])
         errs2.append(_err(tr, TAGS[0])[LATE].mean())
@@ -220,7 +220,7 @@ def test_wrong_wavelength_is_worse_negative_control(params, traces):
         reads = _reads(jax.random.PRNGKey(seed), TAGS[0], OFFSETS[0])
         bad = reads._replace(wavelength=reads.wavelength * 1.1)
         s0 = rt.init(jax.random.PRNGKey(100 + seed), cfg, params)
-        _, tr = rt.run(jax.random.PRNGKey(200 + seed), cfg, params, bad, s0)
+        _, tr = rt.run(jax.random.PRNGKey(200 + seed), s0, cfg, params, bad)
         assert _err(tr, TAGS[0])[LATE].mean() > 2 * _err(traces["phase", seed], TAGS[0])[LATE].mean()
 
 
@@ -266,11 +266,11 @@ def test_bad_params_and_reads_are_refused(params):
     s0 = rt.init(jax.random.PRNGKey(0), cfg, params)
     reads = _reads(jax.random.PRNGKey(0), TAGS[0], OFFSETS[0])
     with pytest.raises(ValueError, match="RSSI"):
-        rt.run(jax.random.PRNGKey(0), cfg, params, reads._replace(rssi=reads.rssi.at[3, 0].set(0.0)), s0)
+        rt.run(jax.random.PRNGKey(0), s0, cfg, params, reads._replace(rssi=reads.rssi.at[3, 0].set(0.0)))
     with pytest.raises(ValueError, match=r"\[0, 2π\)"):
-        rt.run(jax.random.PRNGKey(0), cfg, params, reads._replace(phase=reads.phase - 4.0), s0)
+        rt.run(jax.random.PRNGKey(0), s0, cfg, params, reads._replace(phase=reads.phase - 4.0))
     with pytest.raises(ValueError, match="shape"):
         rt.step(jax.random.PRNGKey(0), s0, cfg, params, reads)  # [T, J] given to step
     # a masked slot may hold a zero RSSI: it is not a read
     ok = reads._replace(rssi=reads.rssi.at[3, 0].set(0.0), mask=reads.mask.at[3, 0].set(False))
-    rt.run(jax.random.PRNGKey(0), cfg, params, ok, s0)
+    rt.run(jax.random.PRNGKey(0), s0, cfg, params, ok)

@@ -9,6 +9,7 @@ import pytest
 
 from jaxnav.models import hf_rfid
 from jaxnav.sim import tag_carpet as tc
+from jaxnav.sim import trajectories
 
 SD = jnp.asarray([0.01, 0.01, 0.02])
 
@@ -310,15 +311,15 @@ def test_bad_input_is_refused_with_clear_messages(getkey):
     with pytest.raises(ValueError, match="max_detections"):
         tc.simulate(key, c, r, pose, jnp.tile(jnp.asarray([0.1, 0, 0, 0.1]), (5, 1)), SD, max_detections=3)
     with pytest.raises(ValueError, match="speed"):
-        tc.rectangle_controls(1.0, 1.0, speed=0.0)
+        trajectories.rectangle_controls(1.0, 1.0, speed=0.0)
     with pytest.raises(ValueError, match="speed"):
-        tc.rectangle_controls(1.0, 1.0, speed=-0.2)
+        trajectories.rectangle_controls(1.0, 1.0, speed=-0.2)
     with pytest.raises(ValueError, match="speed_range"):
-        tc.random_controls(key, num_steps=10, speed_range=(0.0, 0.4))
+        trajectories.random_controls(key, num_steps=10, speed_range=(0.0, 0.4))
     with pytest.raises(ValueError, match="min ≤ max"):
-        tc.random_controls(key, num_steps=10, speed_range=(0.4, 0.1))
+        trajectories.random_controls(key, num_steps=10, speed_range=(0.4, 0.1))
     with pytest.raises(ValueError, match="too small"):
-        tc.random_controls(key, bounds=(0, 0, 0.05, 1.0), num_steps=10)
+        trajectories.random_controls(key, bounds=(0, 0, 0.05, 1.0), num_steps=10)
     with pytest.raises(ValueError, match="odometry_sd"):
         tc.simulate(key, c, r, pose, jnp.tile(jnp.asarray([0.1, 0, 0, 0.1]), (5, 1)), -SD)
     with pytest.raises(ValueError, match="motion_model"):
@@ -337,7 +338,7 @@ def _integrate64(start, controls):
 
 
 def test_rectangle_closes_after_each_lap_at_the_set_speed():
-    start, u = tc.rectangle_controls(1.2, 0.8, speed=0.2, dt=0.1, laps=3, start=(0.5, 0.25))
+    start, u = trajectories.rectangle_controls(1.2, 0.8, speed=0.2, dt=0.1, laps=3, start=(0.5, 0.25))
     u = np.asarray(u, np.float64)
     lap = u.shape[0] // 3
     assert u.shape[0] == 3 * lap
@@ -358,7 +359,7 @@ def test_rectangle_closes_after_each_lap_at_the_set_speed():
     np.testing.assert_allclose(np.cos(heading), u[moving, 0] / 0.2, atol=1e-5)
     # a length that is not a multiple of speed·Δt (0.57/0.02 = 28.5 steps): n = round(L/(vΔt)) steps, so
     # the speed is off by at most a relative 1/(2n) ≤ vΔt/(2L − vΔt); here exactly that on the 0.57 m edges
-    _, u2 = tc.rectangle_controls(1.03, 0.57, speed=0.2, dt=0.1, laps=1, turn_at_corners=False)
+    _, u2 = trajectories.rectangle_controls(1.03, 0.57, speed=0.2, dt=0.1, laps=1, turn_at_corners=False)
     u2 = np.asarray(u2, np.float64)
     spd = np.hypot(u2[:, 0], u2[:, 1])
     assert np.all(np.abs(spd / 0.2 - 1) <= 0.02 / (2 * 0.57 - 0.02) + 1e-6)
@@ -376,14 +377,14 @@ def world():
     """A 100 tags/m² carpet, 60 mm readers and a 3000-step random trajectory, shared by the simulation tests
     (one compilation of each simulator for the whole module)."""
     carpet = tc.make_carpet(jax.random.PRNGKey(1), (2.0, 2.0), density=100)
-    start, u = tc.random_controls(jax.random.PRNGKey(2), bounds=BOUNDS, num_steps=STEPS)
+    start, u = trajectories.random_controls(jax.random.PRNGKey(2), bounds=BOUNDS, num_steps=STEPS)
     return carpet, _readers(0.06), start, u
 
 
 def test_random_trajectory_stays_inside_bounds_with_speeds_in_range(getkey, world):
     for i in range(3):
-        start, u = world[2:] if i == 0 else tc.random_controls(getkey(), bounds=BOUNDS, num_steps=STEPS)
-        poses = np.asarray(tc.integrate_controls(start, u))
+        start, u = world[2:] if i == 0 else trajectories.random_controls(getkey(), bounds=BOUNDS, num_steps=STEPS)
+        poses = np.asarray(trajectories.integrate_controls(start, u))
         assert np.all(poses[:, 0] >= BOUNDS[0]) and np.all(poses[:, 0] <= BOUNDS[2])
         assert np.all(poses[:, 1] >= BOUNDS[1]) and np.all(poses[:, 1] <= BOUNDS[3])
         u = np.asarray(u)
@@ -418,7 +419,7 @@ def test_simulate_true_path_and_detections(getkey, world):
     want = _integrate64(start, u)
     np.testing.assert_allclose(run.true_poses[:, :2], want[:, :2], atol=1e-4)
     np.testing.assert_allclose(np.angle(np.exp(1j * (np.asarray(run.true_poses[:, 2]) - want[:, 2]))), 0, atol=1e-4)
-    np.testing.assert_allclose(run.true_poses, tc.integrate_controls(start, u), atol=1e-6)
+    np.testing.assert_allclose(run.true_poses, trajectories.integrate_controls(start, u), atol=1e-6)
     # the detections are detect() at each true pose
     again = jax.vmap(lambda p: tc.detect(c, p, r))(run.true_poses)
     for a, b in zip(run.detections, again):
@@ -462,10 +463,10 @@ def test_omni_body_odometry_is_in_the_robot_frame(getkey, world):
     assert np.all(np.abs(res.std(axis=0) - sd) < 4 * sd / math.sqrt(2 * STEPS))
     # noise-free body odometry integrated with the omni_body model reproduces the true path
     clean = tc.simulate(getkey(), c, r, start, u, jnp.zeros(3), motion_model="omni_body")
-    body_path = tc.integrate_controls(start, clean.odometry, "omni_body")
+    body_path = trajectories.integrate_controls(start, clean.odometry, "omni_body")
     np.testing.assert_allclose(body_path[:, :2], run.true_poses[:, :2], atol=1e-4)
     # negative control: read as world-frame velocities it does not
-    wrong = tc.integrate_controls(start, clean.odometry, "omni")
+    wrong = trajectories.integrate_controls(start, clean.odometry, "omni")
     assert float(jnp.max(jnp.abs(wrong[:, :2] - run.true_poses[:, :2]))) > 0.1
 
 
@@ -479,8 +480,10 @@ def test_kidnap_teleports_and_zeroes_the_odometry(getkey, world):
     np.testing.assert_array_equal(run.odometry[step], [0.0, 0.0, 0.0, u[step, 3]])
     assert float(jnp.max(jnp.abs(run.odometry[step + 1, :3] - u[step + 1, :3]))) > 0  # noise elsewhere
     # before, the controls from the start; afterwards the same controls from the new pose
-    np.testing.assert_allclose(run.true_poses[:step], tc.integrate_controls(start, u[:step]), atol=1e-6)
-    np.testing.assert_allclose(run.true_poses[step + 1 :], tc.integrate_controls(target, u[step + 1 :]), atol=1e-6)
+    np.testing.assert_allclose(run.true_poses[:step], trajectories.integrate_controls(start, u[:step]), atol=1e-6)
+    np.testing.assert_allclose(
+        run.true_poses[step + 1 :], trajectories.integrate_controls(target, u[step + 1 :]), atol=1e-6
+    )
     again = tc.detect(c, target, r)
     for a, b in zip(jax.tree_util.tree_map(lambda x: x[step], run.detections), again):
         np.testing.assert_array_equal(a, b)
@@ -516,22 +519,22 @@ def test_soft_inside_tends_to_the_footprint_indicator(getkey):
     hard = np.asarray(jnp.all(jnp.abs(e) < 0.03, axis=-1))
     far = np.asarray(jnp.min(jnp.abs(jnp.abs(e) - 0.03), axis=-1) > 0.003)
     for tau in (1e-3, 1e-4):
-        soft = np.asarray(tc.soft_inside(e, 0.03, tau))
+        soft = np.asarray(hf_rfid.soft_inside(e, 0.03, tau))
         assert np.all((soft >= 0) & (soft <= 1))  # (0, 1) mathematically; float32 exp underflows far outside
-        assert np.all(np.isfinite(np.asarray(tc.log_soft_inside(e, 0.03, tau))))
+        assert np.all(np.isfinite(np.asarray(hf_rfid.log_soft_inside(e, 0.03, tau))))
         bound = 4 * math.exp(-0.003 / tau)  # each of the four logistic factors is within e^{−d/τ} of its limit
         assert np.max(np.abs(soft - hard)[far]) < bound
     # on an edge midpoint the soft indicator is 1/2 (times ≈1 from the other three sides)
-    np.testing.assert_allclose(tc.soft_inside(jnp.asarray([0.03, 0.0]), 0.03, 1e-4), 0.5, rtol=1e-4)
+    np.testing.assert_allclose(hf_rfid.soft_inside(jnp.asarray([0.03, 0.0]), 0.03, 1e-4), 0.5, rtol=1e-4)
     np.testing.assert_allclose(
-        tc.log_soft_inside(e, 0.03, 1e-3), np.log(tc.soft_inside(e, 0.03, 1e-3)), rtol=1e-4, atol=1e-6
+        hf_rfid.log_soft_inside(e, 0.03, 1e-3), np.log(hf_rfid.soft_inside(e, 0.03, 1e-3)), rtol=1e-4, atol=1e-6
     )
 
 
 def _x64_run(getkey, side=0.3):
     c = tc.make_carpet(getkey(), (1.5, 1.5), density=16, jitter=0.02)
     r = _readers(side, jnp.float64)
-    start, u = tc.rectangle_controls(
+    start, u = trajectories.rectangle_controls(
         0.75, 0.75, speed=0.25, dt=0.1, laps=1, start=(0.375, 0.375), turn_rate=math.pi / 2
     )
     run = tc.simulate(getkey(), c, r, start, u, SD.astype(jnp.float64))
@@ -546,8 +549,8 @@ def test_grad_of_soft_likelihood_wrt_footprint_half_width(getkey):
         tau, window = 0.0075, 0.35  # window ≥ σ + 20τ for every σ below
         vg = jax.jit(
             jax.value_and_grad(
-                lambda hw: tc.soft_detection_log_likelihood(
-                    c, run.true_poses, run.detections, r.offsets, hw, tau, window
+                lambda hw: hf_rfid.soft_detection_log_likelihood(
+                    tc.tag_map(c, window), run.true_poses, run.detections, r.offsets, hw, tau, window
                 )
             )
         )
@@ -565,7 +568,9 @@ def test_grad_of_soft_likelihood_wrt_footprint_half_width(getkey):
         assert float(ll(hw0)) > max(float(ll(jnp.asarray(0.12))), float(ll(jnp.asarray(0.18))))
         # leaving out the pairs beyond the window is harmless: a wider window adds terms of size ≤ e^{−(w−σ)/τ}
         wide = jax.jit(
-            lambda hw: tc.soft_detection_log_likelihood(c, run.true_poses, run.detections, r.offsets, hw, tau, 0.5)
+            lambda hw: hf_rfid.soft_detection_log_likelihood(
+                tc.tag_map(c, 0.5), run.true_poses, run.detections, r.offsets, hw, tau, 0.5
+            )
         )(hw0)
         assert abs(float(wide) - float(ll(hw0))) < 1e-6
 
@@ -579,8 +584,10 @@ def test_grad_of_soft_likelihood_wrt_odometry_noise_sd(getkey):
 
         def ll(sd):
             noisy = u.at[:, :3].add(sd * z)
-            path = tc.integrate_controls(start, noisy)
-            return tc.soft_detection_log_likelihood(c, path, run.detections, r.offsets, r.half_width, tau, window)
+            path = trajectories.integrate_controls(start, noisy)
+            return hf_rfid.soft_detection_log_likelihood(
+                tc.tag_map(c, window), path, run.detections, r.offsets, r.half_width, tau, window
+            )
 
         vg = jax.jit(jax.value_and_grad(ll))
         ll = lambda sd: vg(sd)[0]  # noqa: E731

@@ -62,7 +62,7 @@ def _table_sized_equations(jaxpr, size, found):
 def test_step_jaxpr_touches_the_table_only_through_gather_and_scatter(method, parallel_slots):
     module, config, params = _setup(method, MAX_TAGS, lag=2, parallel_slots=parallel_slots)
     state = jax.eval_shape(lambda: module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3)))
-    closed = jax.make_jaxpr(module._step, static_argnums=(2,))(
+    closed = jax.make_jaxpr(module.kernel, static_argnums=(2,))(
         jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3])
     )
     found = _table_sized_equations(closed.jaxpr, MAX_TAGS, [])
@@ -82,7 +82,9 @@ def test_compiled_step_updates_the_table_in_place(method, parallel_slots):
     module, config, params = _setup(method, MAX_TAGS, lag=2, parallel_slots=parallel_slots)
     state = jax.eval_shape(lambda: module.init(jax.random.PRNGKey(0), config, params, jnp.zeros(3)))
     hlo = (
-        module._step_jit.lower(jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3]))
+        module.step.jitted.lower(
+            jax.random.PRNGKey(1), state, config, params, jnp.zeros(4), _detections([1, 2], [0, 3])
+        )
         .compile()
         .as_text()
     )

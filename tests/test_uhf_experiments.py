@@ -1,4 +1,4 @@
-"""[A] §5.2's UHF-RFID experiments (jaxnav.experiments.uhf_localization): fig-5.3, fig-5.5, fig-5.6.
+"""[A] §5.2's UHF-RFID experiments (jaxnav.experiments.uhf): fig-5.3, fig-5.5, fig-5.6.
 
 The quick variants of fig-5.3 and fig-5.5 run end to end in one module fixture (R = 4 seeded runs per
 setting, 300 particles, 97 steps; both use one compiled 3D function), writing JSON, Markdown and PNG
@@ -22,9 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxnav.experiments import registry
+from jaxnav.experiments import registry, stats
 from jaxnav.experiments import sweep as sw
-from jaxnav.experiments import uhf_localization as xp
+from jaxnav.experiments.uhf import localization as xp
 from jaxnav.localization import rfid_tag
 from jaxnav.sim import uhf_reader as S
 
@@ -40,9 +40,9 @@ def results(tmp_path_factory):
     traces = collections.Counter()
     original = rfid_tag.run
 
-    def counting(key, config, *args):
+    def counting(key, state, config, *args):
         traces[(config.weighting, config.dims)] += 1
-        return original(key, config, *args)
+        return original(key, state, config, *args)
 
     xp.run_once.cache_clear()  # fresh cell functions: nothing compiled before this fixture is reused
     with pytest.MonkeyPatch.context() as mp:
@@ -209,12 +209,12 @@ def test_rmse_summary_hand_computed():
     assert curve["ci95"][0][1] == pytest.approx(0.383489, rel=1e-5)
     assert curve["mean"][-1] == pytest.approx(0.3) and final["mean"] == pytest.approx(0.3)
     assert final["ci95"] == pytest.approx([0.3, 0.3])
-    # the interval is sweep.mean_ci's (Student t), column by column, on the squared errors
+    # the interval is stats.mean_ci's (Student t), column by column, on the squared errors
     rng = np.random.default_rng(0)
     e = rng.uniform(0.0, 1.0, (7, 5))
     curve, _ = xp.rmse_summary(e)
     for t in range(5):
-        m, lo, hi = sw.mean_ci(e[:, t] ** 2)
+        m, lo, hi = stats.mean_ci(e[:, t] ** 2)
         assert curve["mean"][t] == pytest.approx(math.sqrt(m), rel=1e-9)
         assert curve["ci95"][t] == pytest.approx([math.sqrt(max(lo, 0.0)), math.sqrt(hi)], rel=1e-9)
     with pytest.raises(ValueError, match="R, T"):

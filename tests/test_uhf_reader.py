@@ -17,6 +17,7 @@ import pytest
 from scipy import special
 
 from jaxnav.core.weights import wrap_angle
+from jaxnav.models import uhf_calibration
 from jaxnav.models import uhf_rfid as U
 from jaxnav.sim import uhf_reader as R
 
@@ -187,7 +188,7 @@ def test_anchor_reads_recover_light_gamma_parameters(anchor_reads):
     np.testing.assert_allclose(a, U.power_scale(light.reader, ANCHOR, wavelength=light.wavelength), rtol=1e-6)
     mask = np.asarray(light.mask).ravel()
     assert mask.sum() == N  # sensitivities 0 (fixture): every read kept
-    fit = U.estimate_gamma(np.asarray(light.rssi).ravel(), np.asarray(a).ravel(), mask)
+    fit = uhf_calibration.estimate_gamma(np.asarray(light.rssi).ravel(), np.asarray(a).ravel(), mask)
     assert not bool(fit.used_default)
     # sampling sd of the ML k̂: √(k / (N (k ψ′(k) − 1))) (Fisher information of the Gamma); ū = k̂θ̂ has sd √(k θ² / N)
     sd_k = math.sqrt(k / (N * (k * float(special.polygamma(1, k)) - 1.0)))
@@ -273,7 +274,7 @@ def test_squared_gamma_is_misspecified_under_strong_multipath(anchor_reads):
     for name, reads in zip(("light", "strong"), anchor_reads):
         y = np.asarray(reads.rssi, np.float64)
         a = np.asarray(R.anchor_power_scale(reads, ANCHOR), np.float64)
-        fit = U.estimate_gamma(y.ravel(), a.ravel(), method="ml")
+        fit = uhf_calibration.estimate_gamma(y.ravel(), a.ravel(), method="ml")
         k, th = float(fit.params.k), float(fit.params.theta)
         u = np.sqrt(y / a)
         s_disp = float(np.sum(J * (u.mean(axis=1) - u.mean()) ** 2) / (k * th * th))

@@ -11,6 +11,7 @@ import pytest
 from scipy import special, stats
 from scipy.optimize import brentq
 
+from jaxnav.models import uhf_calibration
 from jaxnav.models import uhf_rfid as U
 
 TWO_PI = 2.0 * math.pi
@@ -462,8 +463,8 @@ def test_stirling_remainder_bound_of_app_e():
 def test_closed_form_within_stirling_error_of_exact_ml(k):
     with jax.enable_x64(True):
         y, a = _anchor_reads(int(k * 10), k, 0.3, n=2000, dtype=np.float64)
-        cf = U.estimate_gamma_closed_form(y, a)
-        ml = U.estimate_gamma_ml(y, a)
+        cf = uhf_calibration.estimate_gamma_closed_form(y, a)
+        ml = uhf_calibration.estimate_gamma_ml(y, a)
         u = np.sqrt(np.asarray(y) / np.asarray(a))
         ubar = u.mean()
         s = np.log(ubar) - np.log(u).mean()
@@ -479,7 +480,7 @@ def test_closed_form_within_stirling_error_of_exact_ml(k):
         np.testing.assert_allclose(1 / (2 * cf.k) * (1 + 1 / (6 * cf.k)), s, rtol=1e-10)
         # 0 ≤ k̂_cf − k* ≤ bound (module docstring); the 1e-6·k* slack is the ML accuracy above
         diff = float(cf.k) - float(ml.k)
-        bound = float(U.closed_form_error_bound(ml.k))
+        bound = float(uhf_calibration.closed_form_error_bound(ml.k))
         assert -1e-6 * k_star <= diff <= bound + 1e-6 * k_star, (diff, bound)
         # and the bound is not vacuous: the error is at least half of it here
         assert diff > 0.5 * bound
@@ -504,14 +505,17 @@ def test_estimators_recover_parameters_and_improve_with_n():
         y, a = _anchor_reads(100 + seed, k, theta)
         for n in errs:
             mask = jnp.arange(N_BUF) < n
-            for est in (U.estimate_gamma_closed_form(y, a, mask), U.estimate_gamma_ml(y, a, mask)):
+            for est in (
+                uhf_calibration.estimate_gamma_closed_form(y, a, mask),
+                uhf_calibration.estimate_gamma_ml(y, a, mask),
+            ):
                 errs[n].append(abs(float(est.k) - k) / k)
                 if n == N_BUF:
                     assert abs(float(est.k) - k) < 4 * sd_k and abs(float(est.theta) - theta) < 4 * sd_t, est
     assert np.mean(errs[N_BUF]) < np.mean(errs[100]) / 3, errs
     # negative control: ignoring the per-read path loss (one mean a for every read) adds
     # spread to u = √(y/a), and k̂ falls far outside its 4-SD band
-    wrong = U.estimate_gamma_closed_form(y, jnp.full_like(a, jnp.mean(a)), jnp.ones(N_BUF, bool))
+    wrong = uhf_calibration.estimate_gamma_closed_form(y, jnp.full_like(a, jnp.mean(a)), jnp.ones(N_BUF, bool))
     assert abs(float(wrong.k) - k) > 10 * sd_k
 
 
@@ -523,32 +527,36 @@ def test_fallback_to_default_and_masks():
         mask = jnp.arange(N_BUF) < n_valid
         yy = jnp.where(mask, y, junk)
         for method in ("closed_form", "ml"):
-            fit = U.estimate_gamma(yy, a, mask, method=method)
+            fit = uhf_calibration.estimate_gamma(yy, a, mask, method=method)
             assert int(fit.n_valid) == n_valid and bool(fit.used_default) == expect_default
             if expect_default:
                 assert (float(fit.params.k), float(fit.params.theta)) == U.DEFAULT_GAMMA
                 continue
-            ref = (U.estimate_gamma_closed_form if method == "closed_form" else U.estimate_gamma_ml)(y, a, mask)
+            ref = (
+                uhf_calibration.estimate_gamma_closed_form
+                if method == "closed_form"
+                else uhf_calibration.estimate_gamma_ml
+            )(y, a, mask)
             # the ML's float32 precision is ~1e-4 relative (its docstring); sampling SD here is ~15 %
             np.testing.assert_allclose(fit.params, ref, rtol=1e-5 if method == "closed_form" else 1e-3)
     # masked buffer = the compacted valid reads
     mask = jnp.arange(N_BUF) < 40
     np.testing.assert_allclose(
-        U.estimate_gamma_closed_form(jnp.where(mask, y, junk), a, mask),
-        U.estimate_gamma_closed_form(y[:40], a[:40]),
+        uhf_calibration.estimate_gamma_closed_form(jnp.where(mask, y, junk), a, mask),
+        uhf_calibration.estimate_gamma_closed_form(y[:40], a[:40]),
         rtol=1e-5,
     )
     # a custom default and threshold
-    fit = U.estimate_gamma(y, a, jnp.arange(N_BUF) < 5, min_reads=6, default=U.GammaParams(7.0, 0.1))
+    fit = uhf_calibration.estimate_gamma(y, a, jnp.arange(N_BUF) < 5, min_reads=6, default=U.GammaParams(7.0, 0.1))
     assert bool(fit.used_default) and float(fit.params.k) == 7.0
     # a degenerate sample (identical reads: s = 0, k̂ = ∞) also falls back
     same = jnp.full((N_BUF,), 1e-9)
-    fit = U.estimate_gamma(same, jnp.full((N_BUF,), 1e-9), mask)
+    fit = uhf_calibration.estimate_gamma(same, jnp.full((N_BUF,), 1e-9), mask)
     assert bool(fit.used_default) and float(fit.params.k) == U.DEFAULT_GAMMA.k
-    assert float(U.estimate_gamma_closed_form(same, jnp.full((N_BUF,), 1e-9), mask).k) == math.inf
+    assert float(uhf_calibration.estimate_gamma_closed_form(same, jnp.full((N_BUF,), 1e-9), mask).k) == math.inf
     # inside jit, with traced masks: same result
-    jit_fit = jax.jit(lambda yy, m: U.estimate_gamma(yy, a, m))(y, mask)
-    np.testing.assert_allclose(jit_fit.params, U.estimate_gamma(y, a, mask).params, rtol=1e-6)
+    jit_fit = jax.jit(lambda yy, m: uhf_calibration.estimate_gamma(yy, a, m))(y, mask)
+    np.testing.assert_allclose(jit_fit.params, uhf_calibration.estimate_gamma(y, a, mask).params, rtol=1e-6)
     # the masked log-likelihood ignores junk in masked slots
     ll = U.rssi_log_likelihood(jnp.where(mask, y, junk), a, U.GammaParams(3.0, 0.4), mask)
     np.testing.assert_allclose(ll, U.rssi_log_likelihood(y[:40], a[:40], U.GammaParams(3.0, 0.4)), rtol=1e-5)
@@ -581,17 +589,17 @@ def test_bad_inputs_are_refused_with_clear_messages():
     with pytest.raises(ValueError, match="^sigma must be finite and strictly positive"):
         U.log_w_phase(1.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="reads.*positive received power"):
-        U.estimate_gamma_closed_form(jnp.array([1e-9, 0.0, 2e-9]), 1e-9)
+        uhf_calibration.estimate_gamma_closed_form(jnp.array([1e-9, 0.0, 2e-9]), 1e-9)
     with pytest.raises(ValueError, match="at least 2 valid reads"):
-        U.estimate_gamma_closed_form(jnp.array([1e-9, 0.0, 2e-9]), 1e-9, jnp.array([True, False, False]))
+        uhf_calibration.estimate_gamma_closed_form(jnp.array([1e-9, 0.0, 2e-9]), 1e-9, jnp.array([True, False, False]))
     with pytest.raises(ValueError, match=r"mask must have shape \(3\)"):
-        U.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, jnp.array([True, False]))
+        uhf_calibration.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, jnp.array([True, False]))
     with pytest.raises(ValueError, match="mask must be boolean"):
-        U.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, jnp.array([1, 0, 1]))
+        uhf_calibration.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, jnp.array([1, 0, 1]))
     with pytest.raises(ValueError, match="method must be one of"):
-        U.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, method="newton")
+        uhf_calibration.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, method="newton")
     with pytest.raises(ValueError, match="min_reads must be ≥ 2"):
-        U.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, min_reads=1)
+        uhf_calibration.estimate_gamma(jnp.array([1e-9, 1e-9, 2e-9]), 1e-9, min_reads=1)
     with pytest.raises(ValueError, match=r"antenna.phi_s must be in \(0, π/2\]"):
         U.antenna_gain(np.ones(3), 0.0, U.DEFAULT_ANTENNA._replace(phi_s=2.0))
     with pytest.raises(ValueError, match="tag's height"):

@@ -25,15 +25,15 @@ detections per step is recorded in ``detections_per_step``).
 Modes (rows carry ``method`` and ``setting``):
 
 * ``per_call``: the public ``step`` (host-side validation, then the donated,
-  jitted ``_step_jit``) called once per update from Python, one
+  jitted ``step.jitted``) called once per update from Python, one
   ``block_until_ready`` per step, as a robot would; the donated state is
   carried forward from step to step (the trajectory is cycled). Median over
   ``75 · repeats`` steps (default repeats 2), within a 15 s budget.
 * ``in_scan``: ``run`` over the whole lap (one ``lax.scan``), wall time / T.
   Median over ``repeats`` calls (default 5) after one warm-up call.
 
-``compile_s`` is the wall time of ``lower(...).compile()`` of ``_step_jit``
-(per_call) or ``_run_jit`` (in_scan) for that configuration.
+``compile_s`` is the wall time of ``lower(...).compile()`` of ``step.jitted``
+(per_call) or ``run.jitted`` (in_scan) for that configuration.
 
 The helpers of this module (settings, filter construction, the two timing
 loops) are shared with S2 (:mod:`benchmarks.workloads.s2_hf_map_size`).
@@ -231,14 +231,14 @@ def time_in_scan(
     """
     key = jax.random.key(RUN_KEY)
     if make_state is None:
-        call = lambda: jax.block_until_ready(module.run(key, config, params, controls, observations, state))  # noqa: E731
+        call = lambda: jax.block_until_ready(module.run(key, state, config, params, controls, observations))  # noqa: E731
         return time_calls(call, repeats=repeats, warmup=warmup, budget_s=budget_s, min_repeats=min_repeats)
     samples: list[float] = []
     with _GcOff():
         for i in range(warmup + repeats):
             fresh = jax.block_until_ready(make_state())
             t0 = time.perf_counter()
-            jax.block_until_ready(module.run(key, config, params, controls, observations, fresh, donate_state=True))
+            jax.block_until_ready(module.run(key, fresh, config, params, controls, observations, donate_state=True))
             dt = time.perf_counter() - t0
             if i >= warmup:
                 samples.append(dt)
@@ -278,7 +278,7 @@ def measure(
         inputs = step_inputs(controls, observations)
         keys, ctrls, obs = inputs
         compile_s = ctx.compile_s(
-            compile_key + ("step",), module._step_jit, keys[0], state, config, params, ctrls[0], obs[0]
+            compile_key + ("step",), module.step.jitted, keys[0], state, config, params, ctrls[0], obs[0]
         )
         timing, last = time_per_call(
             module, config, params, state, inputs, steps=per_call_steps, budget_s=per_call_budget_s
@@ -299,9 +299,9 @@ def measure(
             **extra,
         )
     key = jax.random.key(RUN_KEY)
-    run_jit = module._run_jit_donated if donate_scan else module._run_jit
+    run_jit = module.run.jitted_donated if donate_scan else module.run.jitted
     compile_s = ctx.compile_s(
-        compile_key + ("run", donate_scan), run_jit, key, config, params, controls, observations, state
+        compile_key + ("run", donate_scan), run_jit, key, state, config, params, controls, observations
     )
     if donate_scan:
         del state

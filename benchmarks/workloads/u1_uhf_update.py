@@ -13,7 +13,7 @@ the ``J = 4`` reads of a step, ``log W_RSSI`` (two-ray power, stepped antenna
 pattern, squared-Gamma density) plus ``log W_PHASE`` (Gaussian on [A]'s phase
 distance), summed; ``logsumexp`` normalisation; weighted-mean estimate with the
 offset on the circle; ESS; when ``ESS < 0.1 N`` the Gaussian refresh of
-[A] §4.3.3 (from the weighted set's moments, see ``rfid_tag._resample``),
+[A] §4.3.3 (from the weighted set's moments, see ``rfid_tag.resample``),
 clipped into the search box.
 
 Data
@@ -41,7 +41,7 @@ resample cost more, so a median of single steps would favour neither side
 consistently):
 
 * ``jaxnav`` ``in_scan``: :func:`rfid_tag.run` (one ``lax.scan`` over the
-  57 steps), ``compile_s`` of ``rfid_tag._run_jit``.
+  57 steps), ``compile_s`` of ``rfid_tag.run.jitted``.
 * ``jax-baseline`` ``in_scan``: a hand-written plain-JAX ``lax.scan`` of the
   same update (STYLE.md item 14), particles as ``[4, N]`` rows, each read's
   geometry written component by component; not a peer.
@@ -168,8 +168,8 @@ def _jaxnav_run(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dic
     cfg = config(n)
     t_steps = _steps()
     key = jax.random.key(2)
-    compile_s = ctx.compile_s((NAME, "run", n), rt._run_jit, key, cfg, params, reads, state0)
-    fn = lambda: jax.block_until_ready(rt.run(key, cfg, params, reads, state0))  # noqa: E731
+    compile_s = ctx.compile_s((NAME, "run", n), rt.run.jitted, key, state0, cfg, params, reads)
+    fn = lambda: jax.block_until_ready(rt.run(key, state0, cfg, params, reads))  # noqa: E731
     _, trace = fn()
     t = time_calls(fn, repeats=ctx.reps(3 if _big(n) else 10), warmup=0, budget_s=60.0, min_repeats=2)
     _CACHE[("run", n)] = t.median_s / t_steps
@@ -201,7 +201,7 @@ def _jaxnav_run_tags(ctx: Context, size: dict, g: int) -> dict:
     states = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *(initial_state(TAG_N, i) for i in range(g)))
     t_steps = _steps()
     key = jax.random.key(2)
-    compile_s = ctx.compile_s((NAME, "run_tags", g), rt._run_tags_jit, key, cfg, params, reads, states)
+    compile_s = ctx.compile_s((NAME, "run_tags", g), rt.run_tags_jitted, key, cfg, params, reads, states)
     fn = lambda: jax.block_until_ready(rt.run_tags(key, cfg, params, reads, states))  # noqa: E731
     _, trace = fn()
     t = time_calls(fn, repeats=ctx.reps(10), warmup=0, budget_s=60.0, min_repeats=3)
@@ -512,10 +512,10 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
             return W.mean_from_probabilities(p, probs, (3,)), W.ess_from_probabilities(probs), nrm
 
         jit = {
-            "jaxnav step, no resampling": (jax.jit(lambda k, s: rt._step(k, s, cfg_nr, params, r)), (key, state)),
-            "jaxnav refresh (rfid_tag._resample)": (
-                jax.jit(lambda k, p, w: rt._resample(k, p, w, cfg, params)),
-                (key, state.particles, rt._weigh(state, cfg, params, r)),
+            "jaxnav step, no resampling": (jax.jit(lambda k, s: rt.kernel(k, s, cfg_nr, params, r)), (key, state)),
+            "jaxnav refresh (rfid_tag.resample)": (
+                jax.jit(lambda k, p, w: rt.resample(k, p, w, cfg, params)),
+                (key, state.particles, rt.weigh(state, cfg, params, r)),
             ),
             "jaxnav resample, no refresh": (
                 jax.jit(
@@ -562,11 +562,11 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
                 jax.jit(jax.vmap(lambda p, rr: rt.log_likelihoods(cfg, params, p, rr))),
                 (pg, rg),
             )
-            wg = jax.vmap(lambda p, rr: rt._weigh(rt.RFIDTagState(p, jnp.full((n,), -math.log(n))), cfg, params, rr))(
+            wg = jax.vmap(lambda p, rr: rt.weigh(rt.RFIDTagState(p, jnp.full((n,), -math.log(n))), cfg, params, rr))(
                 pg, rg
             )
             jit[f"{g} tags: lax.map of each tag's refresh"] = (
-                jax.jit(lambda k, p, w: jax.lax.map(lambda a: rt._resample(*a, cfg, params), (k, p, w))),
+                jax.jit(lambda k, p, w: jax.lax.map(lambda a: rt.resample(*a, cfg, params), (k, p, w))),
                 (keys, pg, wg),
             )
         fns = {}

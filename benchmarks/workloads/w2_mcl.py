@@ -22,7 +22,7 @@ Implementations
   then the jitted step) called 50 times from Python; median of the per-step
   times (each ``block_until_ready`` on the new state and info).
 * ``jaxnav-nocheck`` ``per_call``: the same with the internal
-  ``mcl._step_jit`` (no validation), to expose the validation overhead.
+  ``mcl.step.jitted`` (no validation), to expose the validation overhead.
 * ``jaxnav`` ``in_scan``: :func:`mcl.run` over the 50 steps (one ``lax.scan``),
   time / 50.
 * ``jax-baseline`` ``in_scan``: a hand-written plain-JAX ``lax.scan`` of the
@@ -192,14 +192,14 @@ def _jaxnav_inputs(n: int):
 
 
 def _jaxnav_per_call(ctx: Context, size: dict, n: int, state0, floor_s: float, impl: str) -> dict:
-    """``mcl.step`` (impl ``jaxnav``) or ``mcl._step_jit`` (``jaxnav-nocheck``) called once per step."""
+    """``mcl.step`` (impl ``jaxnav``) or ``mcl.step.jitted`` (``jaxnav-nocheck``) called once per step."""
     from jaxnav.localization import mcl
 
     config, params = _config_params(n)
     _, keys, ctrls, obs = _jaxnav_inputs(n)
-    fn = mcl.step if impl == "jaxnav" else mcl._step_jit
+    fn = mcl.step if impl == "jaxnav" else mcl.step.jitted
     # Both per_call rows share one executable: compiled (and timed) once.
-    compile_s = ctx.compile_s((NAME, "step", n), mcl._step_jit, keys[0], state0, config, params, ctrls[0], obs[0])
+    compile_s = ctx.compile_s((NAME, "step", n), mcl.step.jitted, keys[0], state0, config, params, ctrls[0], obs[0])
     jax.block_until_ready(fn(keys[0], state0, config, params, ctrls[0], obs[0]))  # warm-up
 
     def start():
@@ -226,7 +226,7 @@ def _jaxnav_per_call(ctx: Context, size: dict, n: int, state0, floor_s: float, i
         steps=t.repeats,
         note="public mcl.step (host-side validation + jitted step)"
         if impl == "jaxnav"
-        else "internal mcl._step_jit, no validation",
+        else "internal mcl.step.jitted, no validation",
     )
 
 
@@ -238,9 +238,9 @@ def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) ->
     config, params = _config_params(n)
     run_key = jax.random.key(2)
     compile_s = ctx.compile_s(
-        (NAME, "run", n), mcl._run_jit, run_key, config, params, sim.controls, sim.observations, state0
+        (NAME, "run", n), mcl.run.jitted, run_key, state0, config, params, sim.controls, sim.observations
     )
-    fn = lambda: jax.block_until_ready(mcl.run(run_key, config, params, sim.controls, sim.observations, state0))
+    fn = lambda: jax.block_until_ready(mcl.run(run_key, state0, config, params, sim.controls, sim.observations))
     big = n >= 10**6
     # At 1e6 one run takes tens of seconds: no separate warm-up (the executable is compiled and cached).
     t = time_calls(fn, repeats=ctx.reps(3 if big else 10), warmup=0 if big else 1, budget_s=60.0, min_repeats=2)

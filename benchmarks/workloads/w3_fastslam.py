@@ -37,37 +37,6 @@ Implementations
   starts from a fresh copy of the initial state.
 * ``jaxnav`` ``in_scan``: :func:`jaxnav.slam.fastslam.run` over the 20 steps
   (one ``lax.scan``), time / 20.
-* ``jaxnav-prototype`` ``per_call`` and ``in_scan``: :func:`prototype_step` /
-  :func:`prototype_run` (``per_call`` behind ``fastslam.step``'s host-side
-  validation, :func:`prototype_step_checked`), jaxnav's step with two changes
-  proposed for ``jaxnav/slam/fastslam.py`` (not a peer, not part of the
-  library; the same filter and keys, the same output to float32 round-off —
-  ``tests/test_benchmark_w3.py`` checks it):
-
-  1. **the landmark EKF on component vectors** (:func:`prototype_landmark_ekf`):
-     the update of all M particles at once with every matrix entry its own
-     ``[M]`` vector — ``ẑ`` by ``vmap`` of the model, the Jacobian's columns
-     by ``jax.jvp`` (no hand-written Jacobian, still generic over the
-     observation model), the 2 × 2 Cholesky factorisation, solves and
-     products unrolled into elementwise arithmetic — instead of ``vmap`` of
-     the per-particle ``kalman.ekf_update``, which leaves XLA:CPU
-     ``[M, 2, 2]`` arrays with a minor dimension of 2, batched ``dot`` calls,
-     transposes and concatenations (≈ 150 ns per particle and observation
-     against ≈ 40–60 ns);
-  2. **the resampling copy of the maps in place** (:func:`inplace_ancestor_copy`)
-     in the donated map buffers. For sorted ancestor indices (systematic and
-     stratified resampling) copying row ``a_i → i`` for the slots with
-     ``a_i > i`` in increasing ``i``, then those with ``a_i < i`` in
-     decreasing ``i``, never overwrites a row that is still to be read, so
-     the result equals ``maps[a]`` exactly. A ``while`` loop of
-     ``dynamic_slice`` / ``dynamic_update_slice`` row copies replaces XLA's
-     gather, which cannot write into its own operand and so needs a fresh
-     map-sized output buffer at every call: above glibc's mmap threshold
-     (32 MiB, the covariances at M = 4000, N = 1000) every ``per_call``
-     step then page-faults the whole buffer in again. Used when a particle's
-     map is at least :data:`INPLACE_MIN_FLOATS` floats (N ≥ 512); below that
-     the loop's per-iteration cost (≈ 1 µs per copied particle) exceeds the
-     gather's and ``jnp.take`` is kept.
 * ``numpy`` ``per_call``: :class:`benchmarks.peers.numpy_fastslam.NumpyFastSLAM`,
   float32, vectorised over particles, a Python loop over the 5 observations,
   maps resampled by fancy indexing.
@@ -124,8 +93,6 @@ PRIOR_SD = 0.05  # m, error of the prior map's means
 FLOAT_BYTES = 4
 PARTICLES = (100, 500, 1000, 4000)
 LANDMARKS = (10, 100, 1000)
-from jaxnav.core.resampling import copy_ancestors_in_place as inplace_ancestor_copy  # noqa: E402
-from jaxnav.slam.fastslam import IN_PLACE_MIN_FLOATS as INPLACE_MIN_FLOATS  # noqa: E402
 
 FLOOR_DOC = (
     "M * (b*(14 + 12K + 12N) + 4) bytes per step, b = 4 (float32), K = 5: poses read+written by the motion "
@@ -140,11 +107,6 @@ __all__ = [
     "make_data",
     "config_params",
     "initial_state",
-    "prototype_landmark_ekf",
-    "inplace_ancestor_copy",
-    "prototype_step",
-    "prototype_step_checked",
-    "prototype_run",
     "profile",
 ]
 
@@ -291,201 +253,6 @@ def _fresh(state):
 
 
 # ---------------------------------------------------------------------------
-# jaxnav-prototype: the proposed changes to jaxnav/slam/fastslam.py
-
-
-def _mat(a, b):
-    """Product of two small matrices given as nested lists of ``[M]`` vectors."""
-    return [[sum(a[i][k] * b[k][j] for k in range(len(b))) for j in range(len(b[0]))] for i in range(len(a))]
-
-
-def _tr(a):
-    return [list(col) for col in zip(*a)]
-
-
-def prototype_landmark_ekf(om, r: jax.Array, poses: jax.Array, mean: jax.Array, cov: jax.Array, z: jax.Array):
-    """Proposed batched replacement of ``vmap(fastslam._landmark_ekf)``: the same EKF on component vectors.
-
-    The update of ``fastslam._landmark_ekf`` (``jaxnav.core.kalman.ekf_update``
-    with ``valid=True``, no gate): ``ẑ = h(x, μ)``, ``H = ∂h/∂μ``,
-    ``y = z − ẑ`` (angle components wrapped), ``S = H Σ Hᵀ + R`` symmetrised,
-    ``log N(y; 0, S)`` from the Cholesky factor ``L`` of ``S``, gain
-    ``K = Σ Hᵀ S⁻¹`` by two triangular solves, Joseph form
-    ``(I − KH) Σ (I − KH)ᵀ + K R Kᵀ`` symmetrised with the diagonal lifted to
-    ≥ 1e-9 (``ensure_pd``). Written for all M particles at once with every
-    matrix entry its own ``[M]`` vector ("structure of arrays"):
-
-    * ``ẑ = vmap(h)`` and the Jacobian's columns ``∂h/∂μ_j`` by one
-      ``jax.jvp`` of ``vmap(h)`` per landmark component (still no hand-written
-      Jacobian, still generic over the observation model);
-    * the ``dz × dz`` Cholesky factorisation, the solves and the products are
-      unrolled over the static sizes into ``[M]``-vector arithmetic.
-
-    ``vmap`` of the per-particle function leaves XLA:CPU ``[M, 2, 2]`` arrays
-    with a minor dimension of 2, batched ``dot`` calls, transposes and
-    concatenations (≈ 30 fusions, ≈ 150 ns per particle and observation);
-    here every operation is elementwise on contiguous ``[M]`` vectors.
-    Inputs ``poses [M, 3]``, ``mean [M, D]``, ``cov [M, D, D]``, ``z [dz]``;
-    returns ``(mean [M, D], cov [M, D, D], log_likelihood [M])``.
-    """
-    from jaxnav.core.weights import wrap_angle
-
-    d = mean.shape[-1]
-    h = lambda mu: jax.vmap(om.mean)(poses, mu)
-    z_hat = h(mean)
-    dz = z_hat.shape[-1]
-    cols = [jax.jvp(h, (mean,), (jnp.zeros_like(mean).at[:, j].set(1.0),))[1] for j in range(d)]
-    hm = [[cols[j][:, i] for j in range(d)] for i in range(dz)]
-    p = [[0.5 * (cov[:, i, j] + cov[:, j, i]) for j in range(d)] for i in range(d)]
-    rr = [[r[i, j] for j in range(dz)] for i in range(dz)]
-    y = [z[i] - z_hat[:, i] for i in range(dz)]
-    for i in om.angle_dims:
-        y[i] = wrap_angle(y[i])
-    c = _mat(p, _tr(hm))  # Σ Hᵀ  [d][dz]
-    s = _mat(hm, c)
-    s = [[0.5 * (s[i][j] + s[j][i]) + rr[i][j] for j in range(dz)] for i in range(dz)]
-    low = [[None] * dz for _ in range(dz)]
-    for j in range(dz):
-        low[j][j] = jnp.sqrt(s[j][j] - sum(low[j][k] * low[j][k] for k in range(j)))
-        for i in range(j + 1, dz):
-            low[i][j] = (s[i][j] - sum(low[i][k] * low[j][k] for k in range(j))) / low[j][j]
-    failed = ~jnp.all(jnp.stack([jnp.isfinite(low[i][i]) for i in range(dz)]), axis=0)
-    for i in range(dz):  # the fallback of kalman._cholesky: √ of the jittered diagonal
-        for j in range(i + 1):
-            fb = jnp.sqrt(jnp.maximum(s[i][i], 1e-9)) if i == j else jnp.zeros_like(s[i][i])
-            low[i][j] = jnp.where(failed, fb, low[i][j])
-
-    def fwd(b):
-        x = []
-        for i in range(dz):
-            x.append((b[i] - sum(low[i][k] * x[k] for k in range(i))) / low[i][i])
-        return x
-
-    def bwd(b):
-        x = [None] * dz
-        for i in reversed(range(dz)):
-            x[i] = (b[i] - sum(low[k][i] * x[k] for k in range(i + 1, dz))) / low[i][i]
-        return x
-
-    white = fwd(y)
-    log_lik = -0.5 * (
-        sum(w * w for w in white) + 2.0 * sum(jnp.log(low[i][i]) for i in range(dz)) + dz * math.log(2.0 * math.pi)
-    )
-    gain = [bwd(fwd(c[i])) for i in range(d)]  # row i of Σ Hᵀ S⁻¹
-    new_mean = jnp.stack([mean[:, i] + sum(gain[i][k] * y[k] for k in range(dz)) for i in range(d)], -1)
-    a = [[(1.0 if i == j else 0.0) - sum(gain[i][k] * hm[k][j] for k in range(dz)) for j in range(d)] for i in range(d)]
-    jos = _mat(_mat(a, p), _tr(a))
-    krk = _mat(_mat(gain, rr), _tr(gain))
-    new = [[0.5 * ((jos[i][j] + krk[i][j]) + (jos[j][i] + krk[j][i])) for j in range(d)] for i in range(d)]
-    for i in range(d):
-        new[i][i] = jnp.maximum(new[i][i], 1e-9)
-    return new_mean, jnp.stack([jnp.stack(row, -1) for row in new], -2), log_lik
-
-
-def _prototype_update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids):
-    """The landmark update as a ``lax.scan`` over all ``K`` slots (the form ``fastslam._update_landmarks``
-    had until the valid-slot loop replaced it), with :func:`prototype_landmark_ekf` as the update branch."""
-    from jaxnav.slam import fastslam as fs
-
-    def body(carry, slot):
-        means, covs, seen, loglik, num_new = carry
-        j, z, ok = slot
-        mu_j = means[:, j]
-        cov_j = covs[:, j]
-        is_new = ok & ~seen[j]
-        is_upd = ok & seen[j]
-
-        def keep():
-            return mu_j, cov_j, jnp.zeros_like(loglik)
-
-        def update():
-            return prototype_landmark_ekf(om, r, poses, mu_j, cov_j, z)
-
-        def initialise():
-            mu, cov = jax.vmap(lambda p: fs._landmark_init(om, r, p, z))(poses)
-            return mu, cov, jnp.zeros_like(loglik)
-
-        branch = jnp.where(is_new, 2, jnp.where(is_upd, 1, 0))
-        mu, cov, ll = jax.lax.switch(branch, (keep, update, initialise))
-        means = means.at[:, j].set(mu)
-        covs = covs.at[:, j].set(cov)
-        seen = seen.at[j].set(seen[j] | ok)
-        return (means, covs, seen, loglik + ll, num_new + is_new.astype(jnp.int32)), None
-
-    carry = (means, covs, seen, jnp.zeros(poses.shape[0], poses.dtype), jnp.zeros((), jnp.int32))
-    (means, covs, seen, loglik, num_new), _ = jax.lax.scan(body, carry, (ids, obs.z, valid))
-    return means, covs, seen, loglik, num_new
-
-
-def _prototype_resample(key, poses, means, covs, log_weights, scheme: str):
-    """``conditional_resample(..., threshold=1.0, normalized=True)`` with the in-place map copy."""
-    from jaxnav.core import resampling
-
-    n = log_weights.shape[0]
-    k_res, _ = jax.random.split(key)  # the split conditional_resample makes
-    idx = resampling.resample_weights(k_res, jnp.exp(log_weights), n, scheme)
-    poses = jnp.take(poses, idx, axis=0)
-    row = math.prod(means.shape[1:]) + math.prod(covs.shape[1:])
-    if scheme in resampling.SORTED_SCHEMES and row >= INPLACE_MIN_FLOATS:
-        means, covs = inplace_ancestor_copy((means, covs), idx)
-    else:
-        means, covs = jnp.take(means, idx, axis=0), jnp.take(covs, idx, axis=0)
-    uniform = jnp.full_like(log_weights, -jnp.log(jnp.asarray(n, log_weights.dtype)))
-    return poses, means, covs, uniform
-
-
-def _prototype_step_impl(key, state, config, params, control, obs):
-    """``fastslam._step`` (version 1, resampling every step) with both proposed changes."""
-    from jaxnav.core import weights
-    from jaxnav.models.motion import get_motion_model
-    from jaxnav.slam import fastslam as fs
-
-    if config.version != 1 or config.ess_threshold < 1.0:
-        raise ValueError("the prototype covers FastSLAM 1.0 resampling every step (W3)")
-    om = config.obs_model
-    model = get_motion_model(config.motion_model)
-    k_move, k_resample = jax.random.split(key)
-    r = om.noise_cov(params.sensor)
-    valid, ids, num_ignored = fs._slot_valid(obs, config.num_landmarks)
-    poses = model.sample(k_move, state.poses, control, params.motion)
-    means, covs, seen, loglik, num_new = _prototype_update_landmarks(
-        om, r, poses, state.means, state.covs, state.seen, obs, valid, ids
-    )
-    norm = weights.normalize(state.log_weights + loglik)
-    probs = jnp.exp(norm.log_weights)
-    estimate = weights.mean_from_probabilities(poses, probs, fs._POSE_ANGLE_DIMS)
-    ess = weights.ess_from_probabilities(probs)
-    poses, means, covs, lw = _prototype_resample(k_resample, poses, means, covs, norm.log_weights, config.resampling)
-    info = fs.FastSLAMInfo(estimate, ess, jnp.asarray(True), norm.log_norm, norm.degenerate, num_ignored, num_new)
-    return fs.FastSLAMState(poses, lw, means, covs, seen), info
-
-
-prototype_step = jax.jit(_prototype_step_impl, static_argnames=("config",), donate_argnames=("state",))
-prototype_step.__doc__ = "Jitted prototype step ``(key, state, config, params, control, obs)``; donates ``state``."
-
-
-def prototype_step_checked(key, state, config, params, control, observation):
-    """:func:`prototype_step` behind the host-side validation of ``fastslam.step`` (the ``per_call`` row)."""
-    from jaxnav.slam import fastslam as fs
-
-    fs._validate_params(config, params)
-    fs._validate_state(config, state)
-    fs._validate_inputs(config, control, observation, time_axis=False)
-    return prototype_step(key, state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def prototype_run(key, config, params, controls, observations, state):
-    """``fastslam.run`` (one ``lax.scan``, step key ``fold_in(key, t)``) of :func:`prototype_step`."""
-
-    def body(carry, inputs):
-        t, u, z = inputs
-        return _prototype_step_impl(jax.random.fold_in(key, t), carry, config, params, u, z)
-
-    return jax.lax.scan(body, state, (jnp.arange(controls.shape[0]), controls, observations))
-
-
-# ---------------------------------------------------------------------------
 # timing
 
 
@@ -527,29 +294,22 @@ def _big(m: int, n: int) -> bool:
     return m * n >= 10**6
 
 
-def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float, impl: str) -> dict:
+def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float) -> dict:
     from jaxnav.slam import fastslam as fs
 
     m, n = int(size["M"]), int(size["landmarks"])
     config, params = config_params(m, n)
     _, keys, ctrls, obs = _step_inputs(n)
-    if impl == "jaxnav":
-        fn, jitted, note = (
-            fs.step,
-            fs._step_jit,
-            "public fastslam.step (host-side validation + jitted step, donates state)",
-        )
-    else:
-        fn, jitted = prototype_step_checked, prototype_step
-        note = "prototype_step behind fastslam.step's validation: in-place resampling copy of the maps; a proposal"
-    compile_s = ctx.compile_s((NAME, impl, "step", m, n), jitted, keys[0], state0, config, params, ctrls[0], obs[0])
-    jax.block_until_ready(fn(keys[0], _fresh(state0), config, params, ctrls[0], obs[0]))  # warm-up
+    compile_s = ctx.compile_s(
+        (NAME, "jaxnav", "step", m, n), fs.step.jitted, keys[0], state0, config, params, ctrls[0], obs[0]
+    )
+    jax.block_until_ready(fs.step(keys[0], _fresh(state0), config, params, ctrls[0], obs[0]))  # warm-up
 
     def start():
         box = [_fresh(state0)]
 
         def step(t):
-            new_state, info = fn(keys[t], box[0], config, params, ctrls[t], obs[t])
+            new_state, info = fs.step(keys[t], box[0], config, params, ctrls[t], obs[t])
             jax.block_until_ready((new_state, info))
             box[0] = new_state
 
@@ -558,7 +318,7 @@ def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float, impl: str) -
     t = _per_step_timing(start, passes=ctx.reps(2 if _big(m, n) else 3), budget_s=20.0)
     return make_row(
         NAME,
-        impl,
+        "jaxnav",
         size,
         "per_call",
         t,
@@ -567,11 +327,11 @@ def _jax_per_call(ctx: Context, size: dict, state0, floor_s: float, impl: str) -
         landmarks=n,
         steps=t.repeats,
         dtype="float32",
-        note=note,
+        note="public fastslam.step (host-side validation + jitted step, donates state)",
     )
 
 
-def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float, impl: str) -> dict:
+def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float) -> dict:
     from jaxnav.slam import fastslam as fs
 
     m, n = int(size["M"]), int(size["landmarks"])
@@ -579,19 +339,17 @@ def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float, impl: str) ->
     data = _data(n)
     controls, observations = jnp.asarray(data.controls), data.observations()
     run_key = jax.random.key(2)
-    if impl == "jaxnav":
-        fn, jitted, note = fs.run, fs._run_jit, "fastslam.run over 20 steps (one lax.scan), time / 20"
-    else:
-        fn = jitted = prototype_run
-        note = "prototype_run over 20 steps (one lax.scan), time / 20; a proposal, not a peer"
     compile_s = ctx.compile_s(
-        (NAME, impl, "run", m, n), jitted, run_key, config, params, controls, observations, state0
+        (NAME, "jaxnav", "run", m, n), fs.run.jitted, run_key, state0, config, params, controls, observations
     )
-    call = lambda: jax.block_until_ready(fn(run_key, config, params, controls, observations, state0))
+
+    def call():
+        return jax.block_until_ready(fs.run(run_key, state0, config, params, controls, observations))
+
     t = time_calls(call, repeats=ctx.reps(3 if _big(m, n) else 7), warmup=1, budget_s=30.0, min_repeats=2)
     return make_row(
         NAME,
-        impl,
+        "jaxnav",
         size,
         "in_scan",
         None,
@@ -603,7 +361,7 @@ def _jax_in_scan(ctx: Context, size: dict, state0, floor_s: float, impl: str) ->
         steps=T,
         landmarks=n,
         dtype="float32",
-        note=note,
+        note="fastslam.run over 20 steps (one lax.scan), time / 20",
     )
 
 
@@ -644,13 +402,8 @@ def run(ctx: Context, size: dict) -> list[dict]:
     floor_s = ctx.floor(floor_bytes(m, n))
     state0 = initial_state(m, n)
     rows = []
-    for impl in ("jaxnav", "jaxnav-prototype"):
-        rows += guarded(
-            ctx, NAME, impl, size, "per_call", lambda impl=impl: _jax_per_call(ctx, size, state0, floor_s, impl)
-        )
-        rows += guarded(
-            ctx, NAME, impl, size, "in_scan", lambda impl=impl: _jax_in_scan(ctx, size, state0, floor_s, impl)
-        )
+    rows += guarded(ctx, NAME, "jaxnav", size, "per_call", lambda: _jax_per_call(ctx, size, state0, floor_s))
+    rows += guarded(ctx, NAME, "jaxnav", size, "in_scan", lambda: _jax_in_scan(ctx, size, state0, floor_s))
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, state0, floor_s))
     return rows
 
@@ -677,11 +430,10 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
 
     Parts: the full step; the step without resampling (``ess_threshold`` so low
     that the ``lax.cond`` never resamples); the step with every observation
-    masked out (no EKF); the landmark update alone (``fastslam._update_landmarks``);
+    masked out (no EKF); the landmark update alone (``fastslam.update_landmarks``);
     the resampling alone (``conditional_resample`` of poses and maps, with the
-    log-weights of a real step so that the ancestors are not the identity);
-    the prototype step, its landmark update and its resampling alone; a donated
-    elementwise rewrite of the maps (XLA's bandwidth on them); the same
+    log-weights of a real step so that the ancestors are not the identity); a
+    donated elementwise rewrite of the maps (XLA's bandwidth on them); the same
     resampling gather inside a ``lax.scan`` of 20 steps (per step: the temporary
     buffer is allocated once per scan, not once per step); NumPy's
     fancy-index copy of the maps with the same ancestors.
@@ -699,10 +451,12 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
         key, u, o = keys[1], ctrls[1], obs[1]
         o_none = o._replace(mask=jnp.zeros_like(o.mask))
         r = observation.RANGE_BEARING.noise_cov(params.sensor)
-        valid, ids, _ = fs._slot_valid(o, n)
+        # the slots the step updates (every W3 id is in the map; out-of-range ids would be dropped)
+        valid = o.mask & (o.ids >= 0) & (o.ids < n)
+        ids = jnp.clip(o.ids, 0, n - 1)
         # log-weights after one real step (without resampling): realistic ancestors
         lw = jax.block_until_ready(
-            fs._step_jit(keys[0], _fresh(state0), cfg_nr, params, ctrls[0], obs[0])[0].log_weights
+            fs.step.jitted(keys[0], _fresh(state0), cfg_nr, params, ctrls[0], obs[0])[0].log_weights
         )
         k_res, _ = jax.random.split(jax.random.split(key)[1])
         idx = resampling.resample_weights(k_res, jnp.exp(lw), m)
@@ -710,28 +464,18 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
 
         @partial(jax.jit, donate_argnums=0)
         def update_only(s):
-            upd, _, ll, _ = fs._update_landmarks(
+            upd, _, ll, _ = fs.update_landmarks(
                 observation.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
             )
-            means, covs = fs._write_rows(s.means, s.covs, upd, jnp.arange(s.poses.shape[0]))
-            return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
-
-        @partial(jax.jit, donate_argnums=0)
-        def proto_update_only(s):
-            means, covs, _, ll, _ = _prototype_update_landmarks(
-                observation.RANGE_BEARING, r, s.poses, s.means, s.covs, s.seen, o, valid, ids
-            )
+            # write the updated rows (slot k -> landmark upd.write[k]; write[k] = N drops the slot)
+            means = s.means.at[:, upd.write].set(jnp.swapaxes(upd.rows_mu, 0, 1), mode="drop")
+            covs = s.covs.at[:, upd.write].set(jnp.swapaxes(upd.rows_cov, 0, 1), mode="drop")
             return s._replace(means=means, covs=covs, log_weights=s.log_weights + 1e-6 * ll)
 
         @partial(jax.jit, donate_argnums=0)
         def resample_only(s):
             res = resampling.conditional_resample(key, (s.poses, s.means, s.covs), lw, threshold=1.0, normalized=True)
             p, mu, c = res.particles
-            return s._replace(poses=p, means=mu, covs=c)
-
-        @partial(jax.jit, donate_argnums=0)
-        def proto_resample_only(s):
-            p, mu, c, _ = _prototype_resample(key, s.poses, s.means, s.covs, lw, "systematic")
             return s._replace(poses=p, means=mu, covs=c)
 
         @partial(jax.jit, donate_argnums=0)
@@ -747,15 +491,12 @@ def profile(sizes=((4000, 1000), (4000, 10)), reps: int = 10) -> list[dict]:
             return s._replace(means=mu, covs=c)
 
         parts = [
-            ("full step (fastslam._step_jit)", lambda s: fs._step_jit(key, s, config, params, u, o)[0], 1),
-            ("step without resampling", lambda s: fs._step_jit(key, s, cfg_nr, params, u, o)[0], 1),
-            ("step without observations", lambda s: fs._step_jit(key, s, config, params, u, o_none)[0], 1),
+            ("full step (fastslam.step.jitted)", lambda s: fs.step.jitted(key, s, config, params, u, o)[0], 1),
+            ("step without resampling", lambda s: fs.step.jitted(key, s, cfg_nr, params, u, o)[0], 1),
+            ("step without observations", lambda s: fs.step.jitted(key, s, config, params, u, o_none)[0], 1),
             ("landmark update only", update_only, 1),
             ("resampling only (jnp.take)", resample_only, 1),
             ("resampling gather in a scan, per step", gather_in_scan, T),
-            ("prototype step", lambda s: prototype_step(key, s, config, params, u, o)[0], 1),
-            ("prototype update only (component-vector EKF)", proto_update_only, 1),
-            ("prototype resampling only (in place if N >= 512)", proto_resample_only, 1),
             ("elementwise rewrite of the maps (XLA)", rewrite, 1),
         ]
         for label, f, div in parts:

@@ -34,7 +34,7 @@ def compiled_vmap(
     shared: tuple = (),
     mode: str = "vmap",
     compiler_options: dict | None = None,
-):
+) -> Any:
     """``jax.jit(jax.vmap(fn))`` compiled for the shapes of ``args``, cached on the ``fn`` object.
 
     The executable is called as ``exe(*args, *shared)`` and evaluates

@@ -390,7 +390,9 @@ class SigmaWeights(NamedTuple):
     scale: float
 
 
-def sigma_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, dtype=jnp.float32) -> SigmaWeights:
+def sigma_weights(
+    n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, dtype: Any = jnp.float32
+) -> SigmaWeights:
     """Weights of the ``2n + 1`` scaled sigma points (van der Merwe 2004, eq. 3.5–3.6).
 
     ``λ = α²(n + κ) − n``; ``w_m⁰ = λ/(n + λ)``, ``w_c⁰ = w_m⁰ + 1 − α² + β``,

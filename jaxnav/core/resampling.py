@@ -197,7 +197,7 @@ def _u96_to_float(w2, w1, w0) -> jax.Array:
     return (w2.astype(f32) * 2.0**32 + w1.astype(f32)) * 2.0**32 + w0.astype(f32)
 
 
-def scale(total: U64, count, size: int) -> Scale:
+def scale(total: U64, count: int | jax.Array, size: int) -> Scale:
     """The :class:`Scale` of ``count`` (≤ ``size``, static) strata of ``[0, total)`` (``R`` computed exactly, once)."""
     if not 1 <= size <= MAX_SAMPLES:
         raise ValueError(f"the number of samples must be in [1, {MAX_SAMPLES}], got {size}")

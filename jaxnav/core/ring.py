@@ -20,7 +20,7 @@ functions; the lag axis is then axis 1, 2, … of the stacked arrays.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +46,7 @@ class RingBuffer(NamedTuple):
         return self.data.shape[0]
 
 
-def ring_init(capacity: int, item_shape: tuple[int, ...] = (), dtype=jnp.float32) -> RingBuffer:
+def ring_init(capacity: int, item_shape: tuple[int, ...] = (), dtype: Any = jnp.float32) -> RingBuffer:
     """An empty ring holding up to ``capacity`` items of ``item_shape``."""
     if int(capacity) < 1:
         raise ValueError(f"capacity must be a positive integer (the lag L), got {capacity!r}")

@@ -20,7 +20,7 @@ every backend and under ``jax_enable_x64`` or not. Functions that take a Python
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -149,7 +149,7 @@ def cumsum(a: U64) -> U64:
     return U64(fastmath.int_cumsum(a.hi + carry), lo)
 
 
-def to_float(a: U64, dtype=jnp.float32) -> jax.Array:
+def to_float(a: U64, dtype: Any = jnp.float32) -> jax.Array:
     """``hi·2³² + lo`` rounded to ``dtype`` (an estimate: two roundings)."""
     return a.hi.astype(dtype) * jnp.asarray(2.0**32, dtype) + a.lo.astype(dtype)
 

@@ -1,145 +1,53 @@
-"""The registry of [W]'s reproduced tables and figures, and the machinery they share.
+"""Run the reproduced tables and figures by name: the one entry point shared by every study.
 
-An :class:`Experiment` names a result of [W] ("table-3.1", "fig-4.4", …) and
-knows its *cells* (one ``(setting, method)`` per table row or curve point),
-how to summarise the per-run errors of its cells into a JSON-ready result
-(mean and 95 % interval of every column, [W]'s value beside it), and how to
-render that result (terminal table, Markdown, PNG). :func:`run` is the one
-entry point: it sweeps the cells with :func:`jaxnav.experiments.sweep.sweep`
-(chunked, vmapped, resumable) and writes ``NAME.json``, ``NAME.md`` and
-``NAME.png`` into an output directory.
+:func:`run` looks an :class:`~jaxnav.experiments.experiment.Experiment` up by
+name (:func:`get`), sweeps its cells with :func:`jaxnav.experiments.sweep.sweep`
+(chunked, vmapped, resumable), summarises the runs and writes ``NAME.json``,
+``NAME.md`` and ``NAME.png`` into an output directory. :func:`experiments`
+and :func:`names` list what can be run.
 
 Every experiment has a *quick* variant (short trajectories, few particles)
 that the test suite runs in seconds; the full variant is the thesis
-setting. Register a new one with :func:`register`.
+setting.
+
+This module knows no study: the experiments come from the explicit list of
+:mod:`jaxnav.experiments.catalog`, loaded the first time a name is looked
+up, so importing the registry loads no study. A new experiment is added to
+that list.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import os
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Mapping
 
 import jax
-import numpy as np
 
-from jaxnav.experiments import hf_slam as hf
 from jaxnav.experiments import sweep as sw
+from jaxnav.experiments.experiment import Cell, Experiment
 
-__all__ = [
-    "Cell",
-    "Experiment",
-    "EXPERIMENTS",
-    "register",
-    "get",
-    "run",
-    "ERROR_COLUMNS",
-    "error_cell",
-    "summarize_column",
-]
-
-ERROR_COLUMNS = ("x_mm", "y_mm", "theta_rad", "dr_mm", "tx_mm", "ty_mm", "dt_mm")
-"""[W]'s table columns: robot x, y, θ, distance; tag x, y, distance (mm, rad)."""
+__all__ = ["Cell", "Experiment", "experiments", "names", "get", "run"]
 
 
-@dataclass(frozen=True)
-class Cell:
-    """One table row or curve point: a ``setting`` run by ``method``, grouped under ``row``.
+def experiments() -> Mapping[str, Experiment]:
+    """Every experiment by name (read-only; :func:`jaxnav.experiments.catalog.experiments`)."""
+    from jaxnav.experiments import catalog  # the studies, imported when first needed
 
-    Attributes:
-        id: unique id (it seeds the cell's runs: see :func:`jaxnav.experiments.sweep.run_key`).
-        row: the result row the cell's runs are pooled into (Table 4.1 pools five rectangles).
-        method: the method's name (:data:`jaxnav.experiments.hf_slam.METHODS` for the
-            HF-RFID cells).
-        setting: what the runs simulate (an :class:`~jaxnav.experiments.hf_slam.HFSetting`,
-            an :class:`~jaxnav.experiments.ir_positioning.IRSetting`).
-        fn: ``(run_key, *args) -> per-run result`` (default: [W]'s errors of
-            :func:`hf_slam.run_once` for an HF setting).
-        args: arrays given to every run of the cell after its key. Cells with
-            the same ``fn`` and ``args`` of the same shapes share one compilation.
-    """
-
-    id: str
-    row: str
-    method: str
-    setting: Any
-    fn: Callable[..., Any] | None = None
-    args: tuple = ()
-
-    def run_fn(self) -> Callable[[jax.Array], Any]:
-        return self.fn if self.fn is not None else error_cell(self.method, self.setting)
+    return catalog.experiments()
 
 
-@functools.lru_cache(maxsize=256)
-def error_cell(method: str, setting: hf.HFSetting) -> Callable[[jax.Array], hf.Errors]:
-    """``key -> Errors`` of one seeded run of ``method`` on ``setting``.
-
-    Cached: experiments sharing a (method, setting) cell get the same function, so
-    they share its compilation (:func:`jaxnav.core.batch.compiled_vmap`).
-    """
-
-    def fn(key):
-        return hf.run_once(key, method, setting)[0]
-
-    return fn
-
-
-@dataclass(frozen=True)
-class Experiment:
-    """A reproduced result of [W].
-
-    Attributes:
-        name: registry name, e.g. "table-3.1".
-        title: one line.
-        cells: ``quick -> [Cell]``.
-        summarize: ``(runs {cell_id: {field: [R]}}, cells, quick) -> result`` (a JSON-ready dict).
-        render: ``result -> str`` for the terminal.
-        markdown: ``result -> str``.
-        plot: ``(result, path) -> None`` writes a PNG.
-        notes: printed under the result.
-        batching: how a chunk of runs is evaluated, ``"vmap"`` or ``"map"``
-            (:func:`jaxnav.experiments.sweep.sweep`).
-        compiler_options: XLA options of the full variant's compilation (``None``: XLA's
-            defaults), e.g. :data:`jaxnav.experiments.sweep.LIGHT_COMPILE`.
-    """
-
-    name: str
-    title: str
-    cells: Callable[[bool], list[Cell]]
-    summarize: Callable[..., dict]
-    render: Callable[[dict], str]
-    markdown: Callable[[dict], str]
-    plot: Callable[[dict, str], None]
-    notes: str = ""
-    batching: str = "vmap"
-    compiler_options: dict | None = None
-
-
-EXPERIMENTS: dict[str, Experiment] = {}
-
-
-def register(experiment: Experiment) -> Experiment:
-    """Add ``experiment`` to :data:`EXPERIMENTS` under its name."""
-    EXPERIMENTS[experiment.name] = experiment
-    return experiment
+def names() -> tuple[str, ...]:
+    """The names of :func:`experiments`, sorted."""
+    return tuple(sorted(experiments()))
 
 
 def get(name: str) -> Experiment:
-    """The registered experiment ``name`` (a clear error listing the names otherwise)."""
-    from jaxnav.experiments import _all  # noqa: F401  (registers the built-in experiments)
-
-    if name not in EXPERIMENTS:
-        raise ValueError(f"unknown experiment {name!r}; choose from {', '.join(sorted(EXPERIMENTS))}")
-    return EXPERIMENTS[name]
-
-
-def summarize_column(values: np.ndarray, paper: float | None) -> dict:
-    """``{"mean", "ci95": [lo, hi], "paper"}`` of one column's per-run values."""
-    m, lo, hi = sw.mean_ci(values)
-    return {"mean": m, "ci95": [lo, hi], "paper": paper}
+    """The experiment ``name`` (a clear error listing the names otherwise)."""
+    known = experiments()
+    if name not in known:
+        raise ValueError(f"unknown experiment {name!r}; choose from {', '.join(sorted(known))}")
+    return known[name]
 
 
 def run(
@@ -172,7 +80,7 @@ def run(
     cells = exp.cells(quick)
     checkpoint = None if out_dir is None else os.path.join(out_dir, f"{name}.{'quick.' if quick else ''}runs.json")
     raw = sw.sweep(
-        [(c.id, c.run_fn(), c.args) for c in cells],
+        [(c.id, c.fn, c.args) for c in cells],
         runs,
         key,
         checkpoint,

@@ -30,7 +30,6 @@ Summaries: :func:`mean_ci` gives the mean and the 95 % Student-t interval
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import zlib
@@ -48,8 +47,6 @@ __all__ = [
     "run_key",
     "sweep",
     "default_workers",
-    "mean_ci",
-    "student_t_quantile",
     "Progress",
     "FAST_COMPILE",
     "LIGHT_COMPILE",
@@ -280,40 +277,3 @@ def sweep(
         stored = data["cells"][cell_id]
         out[cell_id] = {name: np.asarray(values[:runs]) for name, values in stored.items()}
     return out
-
-
-def student_t_quantile(p: float, dof: int) -> float:
-    """``t_{p, dof}``, the ``p`` quantile of Student's t (bisection on its CDF, ``1e-10`` accurate)."""
-    if dof < 1:
-        raise ValueError(f"dof must be ≥ 1, got {dof}")
-    from jax.scipy.special import betainc
-
-    def cdf(t: float) -> float:
-        x = dof / (dof + t * t)
-        with jax.enable_x64(True):
-            tail = 0.5 * float(betainc(0.5 * dof, 0.5, np.float64(x)))
-        return 1.0 - tail if t > 0 else tail
-
-    lo, hi = -1e3, 1e3
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if cdf(mid) < p:
-            lo = mid
-        else:
-            hi = mid
-        if hi - lo < 1e-10:
-            break
-    return 0.5 * (lo + hi)
-
-
-def mean_ci(values: Sequence[float] | np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
-    """``(mean, lo, hi)``: the mean of the runs and its Student-t ``level`` interval (a single run: ``lo = hi = mean``)."""
-    v = np.asarray(values, np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return math.nan, math.nan, math.nan
-    m = float(v.mean())
-    if v.size < 2:
-        return m, m, m
-    half = student_t_quantile(0.5 + level / 2, v.size - 1) * float(v.std(ddof=1)) / math.sqrt(v.size)
-    return m, m - half, m + half

@@ -85,7 +85,7 @@ import functools
 import math
 import os
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -403,7 +403,7 @@ def to_filter_steps(
     duration: float | None = None,
     max_obs: int = 10,
     keep_outliers: bool = False,
-    dtype=jnp.float32,
+    dtype: Any = jnp.float32,
 ) -> MRCLAMSequence:
     """Discretise a robot's streams into ``T`` filter steps (conventions in the module docstring).
 

@@ -64,7 +64,7 @@ Interface (as :mod:`jaxnav.localization.mcl`)::
     state = augmented_mcl.init(key, config, params, initial_pose, initial_sd)
     state = augmented_mcl.init_uniform(key, config, params)        # bounds from params
     state, info = augmented_mcl.step(key, state, config, params, control, observation)
-    final_state, trace = augmented_mcl.run(key, config, params, controls, observations, state)
+    final_state, trace = augmented_mcl.run(key, state, config, params, controls, observations)
 
 Gradients do not flow through the resampling indices or the injection mask
 (both discrete), the stop-gradient policy of every jaxnav resampler.
@@ -73,15 +73,15 @@ Gradients do not flow through the resampling indices or the injection mask
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
@@ -94,6 +94,7 @@ __all__ = [
     "AugmentedMCLInfo",
     "init",
     "init_uniform",
+    "kernel",
     "step",
     "run",
 ]
@@ -176,7 +177,9 @@ class AugmentedMCLState(NamedTuple):
     log_w_fast: jax.Array
 
 
-class AugmentedMCLInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class AugmentedMCLInfo(PFInfo):
     """Per-step diagnostics (stacked over time by :func:`run`).
 
     Attributes:
@@ -191,11 +194,6 @@ class AugmentedMCLInfo(NamedTuple):
         num_injected: int32, particles replaced by random poses this step.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_ignored: jax.Array
     injection_probability: jax.Array
     num_injected: jax.Array
@@ -217,7 +215,7 @@ def _validate_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> 
             raise ValueError(f"params.bounds must satisfy x_min < x_max and y_min < y_max, got {(x0, x1, y0, y1)}")
 
 
-def _validate_state(config: AugmentedMCLConfig, state: AugmentedMCLState) -> None:
+def _validate_state(config: AugmentedMCLConfig, params: Any, state: AugmentedMCLState) -> None:
     if not isinstance(state, AugmentedMCLState):
         raise ValueError(f"state must be an AugmentedMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 3))
@@ -286,7 +284,7 @@ def injection_probability(log_w_slow: jax.Array, log_w_fast: jax.Array) -> jax.A
     return jnp.where(jnp.isfinite(log_w_slow), p, jnp.zeros_like(p))
 
 
-def _step(
+def kernel(
     key: jax.Array,
     state: AugmentedMCLState,
     config: AugmentedMCLConfig,
@@ -294,6 +292,7 @@ def _step(
     control: jax.Array,
     obs: lm.RangeBearingObs,
 ) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
+    """One augmented-MCL update, pure and traceable (:func:`step` is it validated and jitted)."""
     k_move, k_resample, k_mask, k_pose = jax.random.split(key, 4)
     w = mcl.move_and_weight(k_move, state.particles, state.log_weights, config.motion_model, params, control, obs)
     particles, probs = w.particles, w.probs
@@ -332,62 +331,19 @@ def _step(
     return AugmentedMCLState(new_particles, uniform, log_w_slow, log_w_fast), info
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    key: jax.Array,
-    state: AugmentedMCLState,
-    config: AugmentedMCLConfig,
-    params: AugmentedMCLParams,
-    control: jax.Array,
-    observation: lm.RangeBearingObs,
-) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
-    """One augmented-MCL update (Thrun et al. Tab. 8.3) with ``control [control_dim]``.
-
-    Jitted (``config`` static); inputs are validated on the host first
-    (value checks are skipped for tracers inside a caller's ``jit``/``vmap``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, state)
-    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
-    return _step_jit(key, state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(
-    key: jax.Array,
-    config: AugmentedMCLConfig,
-    params: AugmentedMCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    state: AugmentedMCLState,
-) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
-    return scan_filter(_step, config, params, controls, observations, state, key)
-
-
-def run(
-    key: jax.Array,
-    config: AugmentedMCLConfig,
-    params: AugmentedMCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: AugmentedMCLState,
-) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
-    """Filter a whole sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
-
-    Args:
-        key: PRNG key.
-        config, params: as everywhere.
-        controls: ``[T, control_dim]``.
-        observations: ``RangeBearingObs`` with leading axis ``T``.
-        initial_state: from :func:`init` or :func:`init_uniform`.
-
-    Returns:
-        ``(final_state, trace)`` with ``trace`` an :class:`AugmentedMCLInfo`
-        stacked over ``T``.
-    """
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
-    return _run_jit(key, config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="augmented MCL",
+        kernel=kernel,
+        config_type=AugmentedMCLConfig,
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        step_doc="""One augmented-MCL update (Thrun et al. Tab. 8.3) with ``control [control_dim]`` and one
+        step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",
+        run_doc="""Augmented MCL over a sequence: ``controls [T, control_dim]``, observations with leading axis
+        ``T``, ``state`` from :func:`init` or :func:`init_uniform`; ``trace`` an :class:`AugmentedMCLInfo`.""",
+    ),
+    __name__,
+)

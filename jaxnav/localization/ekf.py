@@ -37,13 +37,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 
-__all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "step", "run"]
+__all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "kernel", "step", "run"]
 
 STATE_ANGLE_DIMS = (2,)
 OBS_ANGLE_DIMS = (1,)
@@ -134,7 +134,9 @@ def validate_inputs(config: Any, controls: jax.Array, obs: lm.RangeBearingObs, t
     lm.validate_steps(config.motion_model, controls, obs, time_axis)
 
 
-def init(config: Any, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array) -> KalmanState:
+def init(
+    key: jax.Array | None, config: Any, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array
+) -> KalmanState:
     """The Gaussian prior ``N(initial_pose, initial_cov)``.
 
     Args:
@@ -187,7 +189,15 @@ def _ekf_predict(mean, cov, f, q):
     return kalman.ekf_predict(mean, cov, f, q), jnp.zeros((), bool)
 
 
-def _step(state: KalmanState, config: EKFConfig, params: KalmanParams, control, obs) -> tuple[KalmanState, KalmanInfo]:
+def kernel(
+    key: jax.Array | None,
+    state: KalmanState,
+    config: EKFConfig,
+    params: KalmanParams,
+    control: jax.Array,
+    obs: lm.RangeBearingObs,
+) -> tuple[KalmanState, KalmanInfo]:
+    """One EKF step, pure and traceable (:func:`step` is it validated and jitted); the key is not used."""
     update = partial(
         kalman.ekf_update_sequential,
         gate=config.gate,
@@ -197,33 +207,20 @@ def _step(state: KalmanState, config: EKFConfig, params: KalmanParams, control, 
     return kalman_step(state, params, control, obs, config.motion_model, _ekf_predict, update)
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    state: KalmanState, config: EKFConfig, params: KalmanParams, control: jax.Array, observation: lm.RangeBearingObs
-) -> tuple[KalmanState, KalmanInfo]:
-    """One EKF localization step ([A] Alg. 1); validated on the host, then jitted."""
-    validate_params(config, params)
-    validate_state(state)
-    validate_inputs(config, control, observation, time_axis=False)
-    return _step_jit(state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(config: EKFConfig, params: KalmanParams, controls, observations, state):
-    return scan_filter(_step, config, params, controls, observations, state)
-
-
-def run(
-    config: EKFConfig,
-    params: KalmanParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: KalmanState,
-) -> tuple[KalmanState, KalmanInfo]:
-    """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``."""
-    validate_params(config, params)
-    validate_state(initial_state)
-    validate_inputs(config, controls, observations, time_axis=True)
-    return _run_jit(config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="EKF",
+        kernel=kernel,
+        config_type=EKFConfig,
+        check_params=validate_params,
+        check_state=lambda config, params, state: validate_state(state),
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        deterministic=True,
+        step_doc="""One EKF localization step ([A] Alg. 1): prediction with ``control [control_dim]``, then one update per
+        valid observation slot. Deterministic: ``key`` is not used (``None`` is accepted).""",
+        run_doc="""The EKF over a sequence: ``controls [T, control_dim]`` and observations with leading axis ``T``;
+        ``trace.estimate`` is ``[T, 3]``. Deterministic: ``key`` is not used (``None`` is accepted).""",
+    ),
+    __name__,
+)

@@ -115,8 +115,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import erfc, logsumexp
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import weights
-from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -139,6 +139,7 @@ __all__ = [
     "init",
     "motion_kernels",
     "predict",
+    "kernel",
     "step",
     "run",
 ]
@@ -492,7 +493,7 @@ def _validate_params(config: GridConfig, params: GridParams) -> None:
     lm.validate_map_params(config.motion_model, params)
 
 
-def _validate_state(config: GridConfig, state: GridState) -> None:
+def _validate_state(config: GridConfig, params: Any, state: GridState) -> None:
     if not isinstance(state, GridState):
         raise ValueError(f"state must be a GridState, got {type(state).__name__}")
     check_shape("state.log_belief", state.log_belief, config.shape)
@@ -514,6 +515,7 @@ def _float_dtype(*xs: Any) -> Any:
 
 
 def init(
+    key: jax.Array | None,
     config: GridConfig,
     params: GridParams,
     initial_pose: jax.Array | None = None,
@@ -577,13 +579,15 @@ def _gaussian_prior(config: GridConfig, pose: jax.Array, sd: jax.Array) -> jax.A
 # step and run
 
 
-def _step(
+def kernel(
+    key: jax.Array | None,
     state: GridState,
     config: GridConfig,
     params: GridParams,
     control: jax.Array,
     obs: lm.RangeBearingObs,
 ) -> tuple[GridState, GridInfo]:
+    """One grid-localization step, pure and traceable (:func:`step` is it validated and jitted); the key is not used."""
     dtype = state.log_belief.dtype
     log_pred, mass_lost, trunc = _predict(config, params, state.log_belief, control)
     pred = weights.normalize(log_pred.ravel())  # uniform if every cell left the grid (mass_lost == 1)
@@ -603,61 +607,24 @@ def _step(
     return GridState(log_post.reshape(config.shape)), info
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    state: GridState,
-    config: GridConfig,
-    params: GridParams,
-    control: jax.Array,
-    observation: lm.RangeBearingObs,
-) -> tuple[GridState, GridInfo]:
-    """One grid-localization update ([A] Alg. 2): convolution prediction, then correction.
-
-    Jitted (``config`` static); inputs are validated on the host first
-    (value checks are skipped for tracers inside a caller's ``jit``/``vmap``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, state)
-    _validate_inputs(config, control, observation, time_axis=False)
-    return _step_jit(state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(
-    config: GridConfig,
-    params: GridParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    state: GridState,
-) -> tuple[GridState, GridInfo]:
-    return scan_filter(_step, config, params, controls, observations, state)
-
-
-def run(
-    config: GridConfig,
-    params: GridParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: GridState,
-) -> tuple[GridState, GridInfo]:
-    """Filter a whole sequence in one ``lax.scan``.
-
-    Args:
-        config, params: as everywhere.
-        controls: ``[T, control_dim]``.
-        observations: ``RangeBearingObs`` with leading axis ``T``.
-        initial_state: from :func:`init`.
-
-    Returns:
-        ``(final_state, trace)`` with ``trace`` a :class:`GridInfo` stacked over
-        ``T`` (``trace.estimate`` is ``[T, 3]``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    _validate_inputs(config, controls, observations, time_axis=True)
-    return _run_jit(config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="grid localization",
+        kernel=kernel,
+        config_type=GridConfig,
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        deterministic=True,
+        step_doc="""One grid-localization update ([A] Alg. 2): convolution prediction with ``control [control_dim]``, then
+        the correction by one step's observations. Deterministic: ``key`` is not used (``None`` is accepted).""",
+        run_doc="""Grid localization over a sequence: ``controls [T, control_dim]``, observations with leading axis ``T``,
+        ``state`` from :func:`init`; ``trace`` a :class:`GridInfo` (``trace.estimate`` is ``[T, 3]``).
+        Deterministic: ``key`` is not used (``None`` is accepted).""",
+    ),
+    __name__,
+)
 
 
 # ---------------------------------------------------------------------------
@@ -689,7 +656,7 @@ def predict(state: GridState, config: GridConfig, params: GridParams, control: j
     normalised ``state``); :func:`step` renormalises it.
     """
     _validate_params(config, params)
-    _validate_state(config, state)
+    _validate_state(config, params, state)
     check_shape("control", control, (get_motion_model(config.motion_model).control_dim,))
     check_finite("control", control)
     return _predict_jit(config, params, state.log_belief, control)

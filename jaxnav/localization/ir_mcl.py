@@ -103,7 +103,7 @@ Interface (shared by every jaxnav filter)::
 
     state = ir_mcl.init(key, config, params, area)
     state, info = ir_mcl.step(key, state, config, params, control, detection)
-    final_state, trace = ir_mcl.run(key, config, params, controls, detections, state)
+    final_state, trace = ir_mcl.run(key, state, config, params, controls, detections)
 
 ``run`` scans ``step`` over time with step key ``fold_in(key, t)``; a loop of
 :func:`step` calls with those keys gives the same result. Shapes are fixed
@@ -117,15 +117,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -150,6 +150,7 @@ __all__ = [
     "model_range",
     "default_params",
     "init",
+    "kernel",
     "step",
     "run",
 ]
@@ -242,7 +243,9 @@ class IRMCLState(NamedTuple):
     started: jax.Array
 
 
-class IRMCLInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class IRMCLInfo(PFInfo):
     """Per-step diagnostics (stacked over time by :func:`run`).
 
     Attributes:
@@ -267,11 +270,6 @@ class IRMCLInfo(NamedTuple):
             not used).
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     started: jax.Array
     reinitialised: jax.Array
     num_detections: jax.Array
@@ -376,7 +374,7 @@ def _validate_params(config: IRMCLConfig, params: IRMCLParams) -> None:
         raise ValueError(f"params.log_floor must be ≤ 0 (a log-likelihood floor), got {float(params.log_floor)}")
 
 
-def _validate_state(config: IRMCLConfig, state: IRMCLState) -> None:
+def _validate_state(config: IRMCLConfig, params: Any, state: IRMCLState) -> None:
     if not isinstance(state, IRMCLState):
         raise ValueError(f"state must be an IRMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 3))
@@ -502,7 +500,7 @@ def _loglik(particles, idx, apply, voltage, params):
     return jnp.sum(jnp.where(apply[None, :], ll, 0.0), axis=-1)
 
 
-def _step(
+def kernel(
     key: jax.Array,
     state: IRMCLState,
     config: IRMCLConfig,
@@ -510,6 +508,7 @@ def _step(
     control: jax.Array,
     det: IRDetection,
 ) -> tuple[IRMCLState, IRMCLInfo]:
+    """One step of [W] Alg. 3, pure and traceable (:func:`step` is it validated and jitted)."""
     n = config.num_particles
     layout = params.layout
     k_move, k_redraw, k_pick, k_resample = jax.random.split(key, 4)
@@ -559,22 +558,16 @@ def _step(
     # Alg. 3 lines 12–14: eq. 5.2 for each used receiver (at the restart already in the particles)
     apply = ok & ~trigger
     norm = weights.normalize(prior_lw + _loglik(particles, idx, apply, det.voltage, params))
-    probs = jnp.exp(norm.log_weights)
 
-    # eq. 5.4 and Alg. 3 lines 16–20 (only at a step that weighted the particles)
-    estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.step_ess(probs, norm.degenerate)
+    # eq. 5.4 and Alg. 3 lines 16–20 (resampling only at a step that weighted the particles)
     threshold = jnp.where(jnp.any(apply), jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
-    res = resampling.conditional_resample(
-        k_resample, particles, norm.log_weights, threshold=threshold, scheme=config.resampling, normalized=True
+    res, base = finish_step(
+        k_resample, particles, norm, threshold=threshold, scheme=config.resampling, angle_dims=_ANGLE_DIMS
     )
     num_used = jnp.sum(ok, dtype=jnp.int32)
-    info = IRMCLInfo(
-        estimate=estimate,
-        ess=ess,
-        resampled=res.resampled | trigger,
-        log_likelihood=norm.log_norm,
-        degenerate=norm.degenerate,
+    info = extend_info(
+        IRMCLInfo,
+        base.replace(resampled=res.resampled | trigger),
         started=started,
         reinitialised=trigger,
         num_detections=num_used,
@@ -584,7 +577,34 @@ def _step(
     return IRMCLState(res.particles, res.log_weights, started), info
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
+def _prepare(config: IRMCLConfig, controls: jax.Array, detections: IRDetection) -> tuple[jax.Array, IRDetection]:
+    return jnp.asarray(controls, jnp.float32), _as_detection(detections)
+
+
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="IR MCL",
+        kernel=kernel,
+        config_type=IRMCLConfig,
+        inputs=("control", "detection"),
+        time_inputs=("controls", "detections"),
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=_validate_inputs,
+        prepare=_prepare,
+        step_doc="""One step of [W] Alg. 3: move, (start,) attribute, weight, resample.
+
+        ``control`` is the ``[control_dim]`` odometry of the configured motion model (``omni_body``:
+        ``(v_x, v_y, ω, Δt)``, robot frame, m/s, rad/s, s); ``detection`` one window's
+        :class:`~jaxnav.models.ir.IRDetection` with ``mask``, ``valid``, ``voltage`` of shape ``[R]``
+        (``amplitude`` is not used).""",
+        run_doc="""IR MCL over a whole drive: ``controls [T, control_dim]`` odometry and ``detections`` an
+        :class:`~jaxnav.models.ir.IRDetection` with leading axis ``T`` (e.g.
+        ``ir_world.simulate(...).detections``); ``state`` from :func:`init`. ``trace`` is an
+        :class:`IRMCLInfo` (``trace.estimate`` ``[T, 3]``, ``trace.emitter`` ``[T, R]``).""",
+    ),
+    __name__,
+)
 
 
 def _as_detection(det: IRDetection) -> IRDetection:
@@ -594,67 +614,3 @@ def _as_detection(det: IRDetection) -> IRDetection:
         jnp.asarray(det.voltage, jnp.float32),
         jnp.asarray(det.amplitude, jnp.float32),
     )
-
-
-def step(
-    key: jax.Array,
-    state: IRMCLState,
-    config: IRMCLConfig,
-    params: IRMCLParams,
-    control: jax.Array,
-    detection: IRDetection,
-) -> tuple[IRMCLState, IRMCLInfo]:
-    """One step of [W] Alg. 3: move, (start,) attribute, weight, resample.
-
-    Args:
-        key: PRNG key.
-        state: from :func:`init` or the previous step.
-        config, params: as everywhere.
-        control: ``[control_dim]`` odometry of the configured motion model
-            (``omni_body``: ``(v_x, v_y, ω, Δt)``, robot frame, m/s, rad/s, s).
-        detection: one window's :class:`~jaxnav.models.ir.IRDetection`
-            with ``mask``, ``valid``, ``voltage`` of shape ``[R]``
-            (``amplitude`` is not used).
-
-    Jitted (``config`` static); inputs are validated on the host first
-    (value checks are skipped for tracers).
-    """
-    if not isinstance(config, IRMCLConfig):
-        raise ValueError(f"config must be an IRMCLConfig, got {type(config).__name__}")
-    _validate_params(config, params)
-    _validate_state(config, state)
-    _validate_inputs(config, params, control, detection, time_axis=False)
-    return _step_jit(key, state, config, params, jnp.asarray(control, jnp.float32), _as_detection(detection))
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(key, config, params, controls, detections, state):
-    return scan_filter(_step, config, params, controls, detections, state, key)
-
-
-def run(
-    key: jax.Array,
-    config: IRMCLConfig,
-    params: IRMCLParams,
-    controls: jax.Array,
-    detections: IRDetection,
-    initial_state: IRMCLState,
-) -> tuple[IRMCLState, IRMCLInfo]:
-    """Filter a whole drive in one ``lax.scan`` (step ``t`` uses key ``fold_in(key, t)``).
-
-    Args:
-        controls: ``[T, control_dim]`` odometry.
-        detections: :class:`~jaxnav.models.ir.IRDetection` with leading
-            axis ``T`` (e.g. ``ir_world.simulate(...).detections``).
-        initial_state: from :func:`init`.
-
-    Returns:
-        ``(final_state, trace)``, ``trace`` an :class:`IRMCLInfo` stacked over
-        ``T`` (``trace.estimate`` ``[T, 3]``, ``trace.emitter`` ``[T, R]``).
-    """
-    if not isinstance(config, IRMCLConfig):
-        raise ValueError(f"config must be an IRMCLConfig, got {type(config).__name__}")
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    _validate_inputs(config, params, controls, detections, time_axis=True)
-    return _run_jit(key, config, params, jnp.asarray(controls, jnp.float32), _as_detection(detections), initial_state)

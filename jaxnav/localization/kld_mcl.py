@@ -75,7 +75,7 @@ Interface (as :mod:`jaxnav.localization.mcl`)::
     state = kld_mcl.init(key, config, params, initial_pose, initial_sd)    # n_0 = N_max
     state = kld_mcl.init_uniform(key, config, params, bounds)              # n_0 = N_max
     state, info = kld_mcl.step(key, state, config, params, control, observation)
-    final_state, trace = kld_mcl.run(key, config, params, controls, observations, state)
+    final_state, trace = kld_mcl.run(key, state, config, params, controls, observations)
 
 ``params`` is a :class:`~jaxnav.localization.mcl.MCLParams` (motion and
 sensor noise, landmark map); ε, δ, the bin sizes and the count limits are
@@ -88,16 +88,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import ndtri
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.localization.mcl import MCLParams
@@ -112,6 +112,7 @@ __all__ = [
     "kld_bound",
     "init",
     "init_uniform",
+    "kernel",
     "step",
     "run",
 ]
@@ -194,7 +195,9 @@ class KLDMCLState(NamedTuple):
         return jnp.arange(n_max) < jnp.asarray(self.num_active)[..., None]
 
 
-class KLDMCLInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class KLDMCLInfo(PFInfo):
     """Per-step diagnostics (stacked over time by :func:`run`).
 
     Attributes:
@@ -209,11 +212,6 @@ class KLDMCLInfo(NamedTuple):
         num_bins: int32, ``k(n_t)``: occupied bins among the first ``n_t`` candidates.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_ignored: jax.Array
     num_active: jax.Array
     num_bins: jax.Array
@@ -281,7 +279,7 @@ def _validate_params(config: KLDMCLConfig, params: MCLParams) -> None:
     lm.validate_map_params(config.motion_model, params)
 
 
-def _validate_state(config: KLDMCLConfig, state: KLDMCLState) -> None:
+def _validate_state(config: KLDMCLConfig, params: Any, state: KLDMCLState) -> None:
     if not isinstance(state, KLDMCLState):
         raise ValueError(f"state must be a KLDMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.max_particles, 3))
@@ -332,7 +330,7 @@ def init_uniform(
 # step and run
 
 
-def _step(
+def kernel(
     key: jax.Array,
     state: KLDMCLState,
     config: KLDMCLConfig,
@@ -340,6 +338,7 @@ def _step(
     control: jax.Array,
     obs: lm.RangeBearingObs,
 ) -> tuple[KLDMCLState, KLDMCLInfo]:
+    """One KLD-sampling MCL update, pure and traceable (:func:`step` is it validated and jitted)."""
     n_max = config.max_particles
     k_move, k_cand, k_res = jax.random.split(key, 3)
     n_prev = jnp.clip(jnp.asarray(state.num_active, jnp.int32), 1, n_max)
@@ -388,62 +387,20 @@ def _step(
     return KLDMCLState(new_particles, new_log_w, n_new), info
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    key: jax.Array,
-    state: KLDMCLState,
-    config: KLDMCLConfig,
-    params: MCLParams,
-    control: jax.Array,
-    observation: lm.RangeBearingObs,
-) -> tuple[KLDMCLState, KLDMCLInfo]:
-    """One KLD-sampling MCL update (Thrun et al. Tab. 8.4, fixed shapes) with ``control [control_dim]``.
-
-    Jitted (``config`` static); inputs are validated on the host first
-    (value checks are skipped for tracers inside a caller's ``jit``/``vmap``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, state)
-    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
-    return _step_jit(key, state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(
-    key: jax.Array,
-    config: KLDMCLConfig,
-    params: MCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    state: KLDMCLState,
-) -> tuple[KLDMCLState, KLDMCLInfo]:
-    return scan_filter(_step, config, params, controls, observations, state, key)
-
-
-def run(
-    key: jax.Array,
-    config: KLDMCLConfig,
-    params: MCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: KLDMCLState,
-) -> tuple[KLDMCLState, KLDMCLInfo]:
-    """Filter a whole sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
-
-    Args:
-        key: PRNG key.
-        config, params: as everywhere.
-        controls: ``[T, control_dim]``.
-        observations: ``RangeBearingObs`` with leading axis ``T``.
-        initial_state: from :func:`init` or :func:`init_uniform`.
-
-    Returns:
-        ``(final_state, trace)`` with ``trace`` a :class:`KLDMCLInfo` stacked
-        over ``T`` (``trace.num_active`` is ``[T]``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
-    return _run_jit(key, config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="KLD-sampling MCL",
+        kernel=kernel,
+        config_type=KLDMCLConfig,
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        step_doc="""One KLD-sampling MCL update (Thrun et al. Tab. 8.4, fixed shapes) with ``control
+        [control_dim]`` and one step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",
+        run_doc="""KLD-sampling MCL over a sequence: ``controls [T, control_dim]``, observations with leading
+        axis ``T``, ``state`` from :func:`init` or :func:`init_uniform`; ``trace`` a :class:`KLDMCLInfo`
+        (``trace.num_active`` is ``[T]``).""",
+    ),
+    __name__,
+)

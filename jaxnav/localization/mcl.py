@@ -17,7 +17,7 @@ Interface (shared by every jaxnav filter)::
 
     state = mcl.init(key, config, params, initial_pose, initial_sd)
     state, info = mcl.step(key, state, config, params, control, observation)
-    final_state, trace = mcl.run(key, config, params, controls, observations, state)
+    final_state, trace = mcl.run(key, state, config, params, controls, observations)
 
 ``config`` (:class:`MCLConfig`) is static and fixes the shapes; ``params``
 (:class:`MCLParams`) is a differentiable pytree; ``state``
@@ -37,15 +37,15 @@ every jaxnav resampler.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -57,7 +57,18 @@ from jaxnav.core.validation import (
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 
-__all__ = ["MCLConfig", "MCLParams", "MCLState", "MCLInfo", "init", "init_uniform", "step", "run"]
+__all__ = [
+    "MCLConfig",
+    "MCLParams",
+    "MCLState",
+    "MCLInfo",
+    "init",
+    "init_uniform",
+    "kernel",
+    "step",
+    "run",
+    "move_and_weight",
+]
 
 _ANGLE_DIMS = (2,)
 
@@ -106,7 +117,9 @@ class MCLState(NamedTuple):
     log_weights: jax.Array
 
 
-class MCLInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class MCLInfo(PFInfo):
     """Per-step diagnostics (stacked over time by :func:`run`).
 
     Attributes:
@@ -118,11 +131,6 @@ class MCLInfo(NamedTuple):
         num_ignored: int32, observation slots dropped because their id is not in the map.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_ignored: jax.Array
 
 
@@ -136,13 +144,9 @@ def _validate_params(config: MCLConfig, params: MCLParams) -> None:
     lm.validate_map_params(config.motion_model, params)
 
 
-def _validate_state(config: MCLConfig, state: MCLState) -> None:
+def _validate_state(config: MCLConfig, params: Any, state: MCLState) -> None:
     check_shape("state.particles", state.particles, (config.num_particles, 3))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
-
-
-def _validate_inputs(config: MCLConfig, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    lm.validate_steps(config.motion_model, controls, obs, time_axis)
 
 
 # ---------------------------------------------------------------------------
@@ -251,7 +255,7 @@ def move_and_weight(
     return Weighted(moved, norm, jnp.exp(norm.log_weights), num_ignored)
 
 
-def _step(
+def kernel(
     key: jax.Array,
     state: MCLState,
     config: MCLConfig,
@@ -259,82 +263,35 @@ def _step(
     control: jax.Array,
     obs: lm.RangeBearingObs,
 ) -> tuple[MCLState, MCLInfo]:
+    """One MCL update ([A] Alg. 3), pure and traceable (:func:`step` is it validated and jitted)."""
     k_move, k_resample = jax.random.split(key)
     w = move_and_weight(k_move, state.particles, state.log_weights, config.motion_model, params, control, obs)
-    particles, norm, probs, num_ignored = w.particles, w.norm, w.probs, w.num_ignored
-
-    estimate = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    ess = weights.step_ess(probs, norm.degenerate)
-    res = resampling.conditional_resample(
+    res, base = finish_step(
         k_resample,
-        particles,
-        norm.log_weights,
+        w.particles,
+        w.norm,
         threshold=config.ess_threshold,
         scheme=config.resampling,
         refresh=config.gaussian_refresh,
         angle_dims=_ANGLE_DIMS,
-        normalized=True,
     )
-    info = MCLInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored)
-    return MCLState(res.particles, res.log_weights), info
+    return MCLState(res.particles, res.log_weights), extend_info(MCLInfo, base, num_ignored=w.num_ignored)
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    key: jax.Array,
-    state: MCLState,
-    config: MCLConfig,
-    params: MCLParams,
-    control: jax.Array,
-    observation: lm.RangeBearingObs,
-) -> tuple[MCLState, MCLInfo]:
-    """One MCL update ([A] Alg. 3) with ``control [control_dim]`` and one step's observations.
-
-    Jitted (``config`` static); inputs are validated on the host first
-    (value checks are skipped for tracers inside a caller's ``jit``/``vmap``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, state)
-    _validate_inputs(config, control, observation, time_axis=False)
-    return _step_jit(key, state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(
-    key: jax.Array,
-    config: MCLConfig,
-    params: MCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    state: MCLState,
-) -> tuple[MCLState, MCLInfo]:
-    return scan_filter(_step, config, params, controls, observations, state, key)
-
-
-def run(
-    key: jax.Array,
-    config: MCLConfig,
-    params: MCLParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: MCLState,
-) -> tuple[MCLState, MCLInfo]:
-    """Filter a whole sequence in one ``lax.scan``.
-
-    Args:
-        key: PRNG key; step ``t`` uses ``fold_in(key, t)``.
-        config, params: as everywhere.
-        controls: ``[T, control_dim]``.
-        observations: ``RangeBearingObs`` with leading axis ``T``.
-        initial_state: from :func:`init` or :func:`init_uniform`.
-
-    Returns:
-        ``(final_state, trace)`` with ``trace`` an :class:`MCLInfo` stacked over
-        ``T`` (``trace.estimate`` is ``[T, 3]``).
-    """
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    _validate_inputs(config, controls, observations, time_axis=True)
-    return _run_jit(key, config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="MCL",
+        kernel=kernel,
+        config_type=MCLConfig,
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        step_doc="""One MCL update ([A] Alg. 3) with ``control [control_dim]`` and one step's observations
+        (:class:`~jaxnav.models.landmarks.RangeBearingObs` with slots ``[K]``).""",
+        run_doc="""MCL over a whole sequence: ``controls [T, control_dim]`` and observations with leading
+        axis ``T``; ``state`` from :func:`init` or :func:`init_uniform`. ``trace`` is an
+        :class:`MCLInfo` stacked over ``T`` (``trace.estimate`` is ``[T, 3]``).""",
+    ),
+    __name__,
+)

@@ -41,7 +41,7 @@ Interface::
 
     state = rfid_anchor.init(key, config, params)
     state, info = rfid_anchor.step(key, state, config, params, control, reads)
-    final, trace = rfid_anchor.run(key, config, params, controls, reads, state)
+    final, trace = rfid_anchor.run(key, state, config, params, controls, reads)
 
 ``control`` is ``dX_t = (dx, dy, dz, dφ)`` (m, m, m, rad). [A] runs no
 experiment with Alg. 8 ("no further analysis or experimental results are
@@ -59,8 +59,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core import filter as filter_api
+from jaxnav.core import weights
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -82,6 +83,7 @@ __all__ = [
     "RFIDAnchorInfo",
     "default_params",
     "init",
+    "kernel",
     "step",
     "run",
 ]
@@ -164,15 +166,12 @@ class RFIDAnchorState(NamedTuple):
     log_weights: jax.Array
 
 
-class RFIDAnchorInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class RFIDAnchorInfo(PFInfo):
     """Per-step diagnostics: ``estimate [4 + G]`` (weighted mean; angles on the circle), ``ess``,
     ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``."""
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_reads: jax.Array
 
 
@@ -257,7 +256,15 @@ def _angle_dims(g: int) -> tuple[int, ...]:
     return (3,) + tuple(range(4, 4 + g))
 
 
-def _step(key, state, config, params, control, reads):
+def kernel(
+    key: jax.Array,
+    state: RFIDAnchorState,
+    config: RFIDAnchorConfig,
+    params: RFIDAnchorParams,
+    control: jax.Array,
+    reads: AnchorReads,
+) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
+    """One step of [A] Alg. 8, pure and traceable (:func:`step` is it validated and jitted)."""
     m, d = state.particles.shape
     g = d - 4
     k_move, k_off, k_res = jax.random.split(key, 3)
@@ -294,45 +301,34 @@ def _step(key, state, config, params, control, reads):
         softness=config.antenna_softness,
     )
     norm = weights.normalize(state.log_weights + ll)
-    probs = jnp.exp(norm.log_weights)
-    estimate = weights.mean_from_probabilities(moved, probs, _angle_dims(g))
     any_read = jnp.any(reads.mask)
     threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
-    res = resampling.conditional_resample(k_res, moved, norm.log_weights, threshold=threshold, normalized=True)
-    info = RFIDAnchorInfo(
-        estimate,
-        weights.step_ess(probs, norm.degenerate),
-        res.resampled,
-        jnp.where(any_read, norm.log_norm, 0.0),
-        norm.degenerate,
-        jnp.sum(reads.mask, dtype=jnp.int32),
+    res, base = finish_step(k_res, moved, norm, threshold=threshold, angle_dims=_angle_dims(g))
+    info = extend_info(
+        RFIDAnchorInfo,
+        base.replace(log_likelihood=jnp.where(any_read, norm.log_norm, 0.0)),
+        num_reads=jnp.sum(reads.mask, dtype=jnp.int32),
     )
     return RFIDAnchorState(res.particles, res.log_weights), info
-
-
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def _run(key, config, params, controls, reads, state):
-    return scan_filter(_step, config, params, controls, reads, state, key)
-
-
-_run_jit = jax.jit(_run, static_argnames=("config",))
 
 
 def _as_reads(r: AnchorReads) -> AnchorReads:
     return AnchorReads(*(jnp.asarray(x, jnp.float32) for x in r[:3]), jnp.asarray(r.mask, bool))
 
 
-def _check(config, params, state, controls, reads, lead: int):
-    if not isinstance(config, RFIDAnchorConfig):
-        raise ValueError(f"config must be an RFIDAnchorConfig, got {type(config).__name__}")
-    _validate_params(params)
+def _validate_state(config: RFIDAnchorConfig, params: RFIDAnchorParams, state: RFIDAnchorState) -> None:
     g = np.shape(params.anchors)[0]
     if not isinstance(state, RFIDAnchorState):
         raise ValueError(f"state must be an RFIDAnchorState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 4 + g))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
+
+
+def _validate_inputs(
+    config: RFIDAnchorConfig, params: RFIDAnchorParams, controls: Any, reads: AnchorReads, time_axis: bool
+) -> None:
+    g = np.shape(params.anchors)[0]
+    lead = 1 if time_axis else 0
     t = (None,) * lead
     check_shape("controls" if lead else "control", controls, t + (4,))
     check_finite("controls" if lead else "control", controls)
@@ -355,25 +351,25 @@ def _check(config, params, state, controls, reads, lead: int):
             check_positive("reads.wavelength", np.asarray(reads.wavelength)[mask])
 
 
-def step(
-    key, state: RFIDAnchorState, config: RFIDAnchorConfig, params: RFIDAnchorParams, control: Any, reads: AnchorReads
-) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
-    """One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors read."""
-    _check(config, params, state, control, reads, 0)
-    return _step_jit(key, state, config, params, jnp.asarray(control, jnp.float32), _as_reads(reads))
+def _prepare(config: RFIDAnchorConfig, controls: Any, reads: AnchorReads) -> tuple[jax.Array, AnchorReads]:
+    return jnp.asarray(controls, jnp.float32), _as_reads(reads)
 
 
-def run(
-    key,
-    config: RFIDAnchorConfig,
-    params: RFIDAnchorParams,
-    controls: Any,
-    reads: AnchorReads,
-    initial_state: RFIDAnchorState,
-) -> tuple[RFIDAnchorState, RFIDAnchorInfo]:
-    """[A] Alg. 8 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
-
-    ``controls [T, 4]``; ``reads`` an :class:`AnchorReads` of ``[T, G]``.
-    """
-    _check(config, params, initial_state, controls, reads, 1)
-    return _run_jit(key, config, params, jnp.asarray(controls, jnp.float32), _as_reads(reads), initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="RFID anchor localization",
+        kernel=kernel,
+        config_type=RFIDAnchorConfig,
+        inputs=("control", "reads"),
+        time_inputs=("controls", "reads"),
+        check_params=lambda config, params: _validate_params(params),
+        check_state=_validate_state,
+        check_inputs=_validate_inputs,
+        prepare=_prepare,
+        step_doc="""One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors
+        read (``reads`` an :class:`AnchorReads` of ``[G]``).""",
+        run_doc="""[A] Alg. 8 over ``T`` steps: ``controls [T, 4]``, ``reads`` an :class:`AnchorReads` of ``[T, G]``,
+        ``state`` from :func:`init`.""",
+    ),
+    __name__,
+)

@@ -45,7 +45,7 @@ Interface (shared by every jaxnav filter)::
 
     state = rfid_tag.init(key, config, params)
     state, info = rfid_tag.step(key, state, config, params, reads)        # reads: UHFReads [J]
-    final, trace = rfid_tag.run(key, config, params, reads_T, state)      # reads: UHFReads [T, J]
+    final, trace = rfid_tag.run(key, state, config, params, reads_T)      # reads: UHFReads [T, J]
 
 A static tag has no motion model, so there is no control argument. Step
 ``t`` of :func:`run` uses ``fold_in(key, t)``. A step without a valid read
@@ -54,7 +54,7 @@ where every particle has zero likelihood resets the weights and sets
 ``info.degenerate``, never NaN.
 
 Units: m, rad, W. The Gamma parameters ``(k, θ)`` come from an anchor tag
-(:func:`jaxnav.models.uhf_rfid.estimate_gamma`) or the defaults.
+(:func:`jaxnav.models.uhf_calibration.estimate_gamma`) or the defaults.
 """
 
 from __future__ import annotations
@@ -68,7 +68,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
+from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -87,10 +89,15 @@ __all__ = [
     "RFIDTagInfo",
     "default_params",
     "init",
+    "kernel",
     "step",
     "run",
     "run_tags",
     "log_likelihoods",
+    "Weighed",
+    "weigh",
+    "resample",
+    "run_tags_jitted",
 ]
 
 WEIGHTINGS = ("combined", "rssi", "phase")
@@ -166,7 +173,9 @@ class RFIDTagState(NamedTuple):
     log_weights: jax.Array
 
 
-class RFIDTagInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class RFIDTagInfo(PFInfo):
     """Per-step diagnostics (stacked over time by :func:`run`).
 
     Attributes:
@@ -178,11 +187,6 @@ class RFIDTagInfo(NamedTuple):
         num_reads: int32, valid reads used.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_reads: jax.Array
 
 
@@ -282,7 +286,7 @@ def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax
     return total
 
 
-class _Weighed(NamedTuple):
+class Weighed(NamedTuple):
     """One step's reweighting (Alg. 6 lines 9–19), before the resampling decision is acted on."""
 
     log_weights: jax.Array
@@ -290,7 +294,8 @@ class _Weighed(NamedTuple):
     info: RFIDTagInfo
 
 
-def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> _Weighed:
+def weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> Weighed:
+    """[A] Alg. 6 lines 9–19: weight the particles by the step's reads, estimate, and decide whether to resample."""
     ll = log_likelihoods(config, params, state.particles, reads)
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
@@ -306,10 +311,12 @@ def _weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, re
         norm.degenerate,
         jnp.sum(reads.mask, dtype=jnp.int32),
     )
-    return _Weighed(norm.log_weights, probs, info)
+    return Weighed(norm.log_weights, probs, info)
 
 
-def _resample(key, particles, w: _Weighed, config: RFIDTagConfig, params: RFIDTagParams):
+def resample(
+    key: jax.Array, particles: jax.Array, w: Weighed, config: RFIDTagConfig, params: RFIDTagParams
+) -> tuple[jax.Array, jax.Array]:
     """Alg. 6 lines 20–26 taken: the resampling and refresh, the box clip; uniform weights.
 
     [A]'s Gaussian refresh (lines 21–22) resamples, then draws the new set from the Gaussian
@@ -341,82 +348,62 @@ def _resample(key, particles, w: _Weighed, config: RFIDTagConfig, params: RFIDTa
     return jnp.concatenate([xyz, new[:, 3:]], axis=-1), log_weights
 
 
-def _step(key, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads):
-    w = _weigh(state, config, params, reads)
+def kernel(
+    key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads
+) -> tuple[RFIDTagState, RFIDTagInfo]:
+    """One step of [A] Alg. 6, pure and traceable (:func:`step` is it validated and jitted)."""
+    w = weigh(state, config, params, reads)
     particles, log_weights = jax.lax.cond(
         w.info.resampled,
-        lambda: _resample(key, state.particles, w, config, params),
+        lambda: resample(key, state.particles, w, config, params),
         lambda: (state.particles, w.log_weights),
     )
     return RFIDTagState(particles, log_weights), w.info
-
-
-_step_jit = jax.jit(_step, static_argnames=("config",))
 
 
 def _as_reads(reads: U.UHFReads) -> U.UHFReads:
     return U.UHFReads(*(jnp.asarray(x, jnp.float32) for x in reads[:4]), jnp.asarray(reads.mask, bool))
 
 
-def _validate_state(config: RFIDTagConfig, state: RFIDTagState) -> None:
+def _validate_state(config: RFIDTagConfig, params: Any, state: RFIDTagState) -> None:
     if not isinstance(state, RFIDTagState):
         raise ValueError(f"state must be an RFIDTagState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 4))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
 
 
-def _check(config, params, state, reads, lead: int):
-    if not isinstance(config, RFIDTagConfig):
-        raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
-    _validate_params(params)
-    _validate_state(config, state)
+def _validate_inputs(config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads, time_axis: bool) -> None:
     U.validate_reads(reads)
+    lead = 1 if time_axis else 0
     if len(np.shape(reads.mask)) != lead + 1:
         axes = ("T, " * lead) + "J"
         raise ValueError(f"reads must have shape [{axes}], got mask shape {np.shape(reads.mask)}")
 
 
-def step(
-    key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads
-) -> tuple[RFIDTagState, RFIDTagInfo]:
-    """One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (mask shape ``[J]``).
-
-    Jitted (``config`` static); inputs are validated on the host first.
-    """
-    _check(config, params, state, reads, 0)
-    return _step_jit(key, state, config, params, _as_reads(reads))
-
-
-def _run(key, config, params, reads, state):
-    def body(carry, inputs):
-        t, r = inputs
-        return _step(jax.random.fold_in(key, t), carry, config, params, r)
-
-    return jax.lax.scan(body, state, (jnp.arange(reads.mask.shape[0]), reads))
-
-
-_run_jit = jax.jit(_run, static_argnames=("config",))
-
-
-def run(
-    key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads, initial_state: RFIDTagState
-) -> tuple[RFIDTagState, RFIDTagInfo]:
-    """[A] Alg. 6 over ``T`` steps in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``).
-
-    Args:
-        reads: :class:`~jaxnav.models.uhf_rfid.UHFReads` with mask shape ``[T, J]``.
-        initial_state: from :func:`init`.
-
-    Returns:
-        ``(final_state, trace)``; ``trace.estimate`` is ``[T, 4]``.
-    """
-    _check(config, params, initial_state, reads, 1)
-    return _run_jit(key, config, params, _as_reads(reads), initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="RFID tag localization",
+        kernel=kernel,
+        config_type=RFIDTagConfig,
+        inputs=("reads",),
+        check_params=lambda config, params: _validate_params(params),
+        check_state=_validate_state,
+        check_inputs=_validate_inputs,
+        prepare=lambda config, reads: (_as_reads(reads),),
+        step_doc="""One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (a
+        :class:`~jaxnav.models.uhf_rfid.UHFReads` with mask shape ``[J]``); the reads are cast to float32.""",
+        run_doc="""[A] Alg. 6 over ``T`` steps: ``reads`` with mask shape ``[T, J]``, ``state`` from :func:`init`;
+        ``trace.estimate`` is ``[T, 4]``.""",
+    ),
+    __name__,
+)
 
 
 @partial(jax.jit, static_argnames=("config",))
-def _run_tags_jit(key, config, params, reads, states):
-    """``vmap`` of :func:`_run` over tags, except the resampling branch.
+def run_tags_jitted(
+    key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads, states: RFIDTagState
+) -> tuple[RFIDTagState, RFIDTagInfo]:
+    """``vmap`` of :func:`run` over tags, except the resampling branch.
 
     Under ``vmap`` a per-tag ``lax.cond`` becomes a select that computes the resampling
     and refresh of every tag at every step. Here the tags are reweighed together (``vmap``);
@@ -430,7 +417,7 @@ def _run_tags_jit(key, config, params, reads, states):
 
     def body(carry, inputs):
         t, r = inputs
-        w = jax.vmap(_weigh, in_axes=(0, None, None, 0))(carry, config, params, r)
+        w = jax.vmap(weigh, in_axes=(0, None, None, 0))(carry, config, params, r)
         keys = jax.vmap(lambda k: jax.random.fold_in(k, t))(tag_keys)
 
         def resample_some():
@@ -440,7 +427,7 @@ def _run_tags_jit(key, config, params, reads, states):
                 k, particles, wg = args
                 return jax.lax.cond(
                     wg.info.resampled,
-                    lambda: _resample(k, particles, wg, config, params),
+                    lambda: resample(k, particles, wg, config, params),
                     lambda: (particles, wg.log_weights),
                 )
 
@@ -464,7 +451,7 @@ def run_tags(
 ) -> tuple[RFIDTagState, RFIDTagInfo]:
     """:func:`run` for ``G`` tags at once (one scan, ``vmap`` over tags, no Python loop); reads have mask shape ``[G, T, J]``.
 
-    The resampling runs tag by tag, only for the tags that resample (:func:`_run_tags_jit`),
+    The resampling runs tag by tag, only for the tags that resample (:func:`run_tags_jitted`),
     so G tags cost about G likelihood evaluations per step plus their own resamplings.
 
     Tag ``g`` runs with key ``key_g = fold_in(key, g)``; when ``initial_states`` is None
@@ -483,4 +470,4 @@ def run_tags(
         keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 2**31 - 1))(jnp.arange(g))
         initial_states = jax.vmap(lambda k: _init(k, config, params))(keys)
     check_shape("initial_states.particles", initial_states.particles, (g, config.num_particles, 4))
-    return _run_tags_jit(key, config, params, _as_reads(reads), initial_states)
+    return run_tags_jitted(key, config, params, _as_reads(reads), initial_states)

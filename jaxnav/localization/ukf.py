@@ -28,15 +28,15 @@ from functools import partial
 
 import jax
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_choice
 from jaxnav.localization import ekf
 from jaxnav.localization.ekf import KalmanInfo, KalmanParams, KalmanState
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS
 
-__all__ = ["UKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "step", "run"]
+__all__ = ["UKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "kernel", "step", "run"]
 
 
 @dataclass(frozen=True)
@@ -70,12 +70,22 @@ class UKFConfig:
         return None if self.gate_probability is None else kalman.chi2_gate(self.gate_probability, 2)
 
 
-def init(config: UKFConfig, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array) -> KalmanState:
+def init(
+    key: jax.Array | None, config: UKFConfig, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array
+) -> KalmanState:
     """The Gaussian prior ``N(initial_pose, initial_cov)`` (as :func:`jaxnav.localization.ekf.init`)."""
-    return ekf.init(config, params, initial_pose, initial_cov)
+    return ekf.init(None, config, params, initial_pose, initial_cov)
 
 
-def _step(state: KalmanState, config: UKFConfig, params: KalmanParams, control, obs) -> tuple[KalmanState, KalmanInfo]:
+def kernel(
+    key: jax.Array | None,
+    state: KalmanState,
+    config: UKFConfig,
+    params: KalmanParams,
+    control: jax.Array,
+    obs: lm.RangeBearingObs,
+) -> tuple[KalmanState, KalmanInfo]:
+    """One UKF step, pure and traceable (:func:`step` is it validated and jitted); the key is not used."""
     weights = kalman.sigma_weights(3, config.alpha, config.beta, config.kappa, state.mean.dtype)
     predict = partial(kalman.ukf_predict, weights=weights, state_angle_dims=ekf.STATE_ANGLE_DIMS)
     update = partial(
@@ -88,33 +98,20 @@ def _step(state: KalmanState, config: UKFConfig, params: KalmanParams, control, 
     return ekf.kalman_step(state, params, control, obs, config.motion_model, predict, update)
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    state: KalmanState, config: UKFConfig, params: KalmanParams, control: jax.Array, observation: lm.RangeBearingObs
-) -> tuple[KalmanState, KalmanInfo]:
-    """One UKF localization step; validated on the host, then jitted."""
-    ekf.validate_params(config, params)
-    ekf.validate_state(state)
-    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
-    return _step_jit(state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(config: UKFConfig, params: KalmanParams, controls, observations, state):
-    return scan_filter(_step, config, params, controls, observations, state)
-
-
-def run(
-    config: UKFConfig,
-    params: KalmanParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: KalmanState,
-) -> tuple[KalmanState, KalmanInfo]:
-    """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``."""
-    ekf.validate_params(config, params)
-    ekf.validate_state(initial_state)
-    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
-    return _run_jit(config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="UKF",
+        kernel=kernel,
+        config_type=UKFConfig,
+        check_params=ekf.validate_params,
+        check_state=lambda config, params, state: ekf.validate_state(state),
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        deterministic=True,
+        step_doc="""One UKF localization step (unscented prediction and sequential updates). Deterministic: ``key`` is not
+        used (``None`` is accepted).""",
+        run_doc="""The UKF over a sequence: ``controls [T, control_dim]`` and observations with leading axis ``T``;
+        ``trace.estimate`` is ``[T, 3]``. Deterministic: ``key`` is not used (``None`` is accepted).""",
+    ),
+    __name__,
+)

@@ -43,7 +43,7 @@ an array shape.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -51,7 +51,7 @@ import numpy as np
 
 from jaxnav.core import fastmath
 from jaxnav.core.kalman import UpdateResult, ensure_pd, symmetrize
-from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
+from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape, is_concrete
 
 __all__ = [
     "HFReaderParams",
@@ -72,6 +72,10 @@ __all__ = [
     "footprint_landmark_update",
     "footprint_landmark_initialise",
     "landmark_observations",
+    "log_soft_inside",
+    "soft_inside",
+    "TagMap",
+    "soft_detection_log_likelihood",
 ]
 
 DEFAULT_BETA = 0.1
@@ -139,7 +143,7 @@ def default_reader_offsets(rows: int = 2, cols: int = 4, pitch: float = 0.06) ->
     return jnp.asarray(grid, jnp.float32)
 
 
-def reader_params(side: float = 0.06, offsets=None, beta: float = DEFAULT_BETA) -> HFReaderParams:
+def reader_params(side: float = 0.06, offsets: Any = None, beta: float = DEFAULT_BETA) -> HFReaderParams:
     """:class:`HFReaderParams` for square footprints of ``side`` metres (σ = side/2).
 
     Args:
@@ -286,7 +290,9 @@ def landmark_observations(detections: TagDetections, params: HFReaderParams) -> 
     return ReaderObservations(detections.ids, params.offsets[readers], detections.mask)
 
 
-def footprint_landmark_update(pose, mean, cov, z, r) -> UpdateResult:
+def footprint_landmark_update(
+    pose: jax.Array, mean: jax.Array, cov: jax.Array, z: jax.Array, r: jax.Array
+) -> UpdateResult:
     """The HF footprint's landmark update in closed form (exactly the EKF's: ``h`` is linear in the landmark).
 
     ``h(x, m) = R(θ)ᵀ(m − p)``, so the detection is the world point ``m_z = p + R(θ) z`` with noise
@@ -316,7 +322,154 @@ def footprint_landmark_update(pose, mean, cov, z, r) -> UpdateResult:
     )
 
 
-def footprint_landmark_initialise(pose, z, r) -> tuple[jax.Array, jax.Array]:
+def footprint_landmark_initialise(pose: jax.Array, z: jax.Array, r: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``μ = p + R(θ) z``, ``Σ = R(θ) R_z R(θ)ᵀ = R_z`` (the generic ``J R Jᵀ`` with ``J = R(θ)``;
     ``R_z`` is isotropic, :func:`footprint_landmark_update`)."""
     return world_frame(pose, z), ensure_pd(r)
+
+
+# ---------------------------------------------------------------------------
+# smooth relaxation: a differentiable detection likelihood
+
+
+def log_soft_inside(e: jax.Array, half_width: jax.Array, temperature: jax.Array) -> jax.Array:
+    """``log Π_{a∈{x,y}} s((σ − e_a)/τ)·s((σ + e_a)/τ)`` for ``e [..., 2]`` (m); ``s`` the logistic."""
+    hw = jnp.asarray(half_width)
+    tau = jnp.asarray(temperature)
+    z = jax.nn.log_sigmoid((hw - e) / tau) + jax.nn.log_sigmoid((hw + e) / tau)
+    return jnp.sum(z, axis=-1)
+
+
+def soft_inside(e: jax.Array, half_width: jax.Array, temperature: jax.Array) -> jax.Array:
+    """Smooth footprint indicator in (0, 1): → ``1{|e_x| < σ, |e_y| < σ}`` as ``τ → 0``.
+
+    Far outside the footprint the value underflows to 0 in floating point; use
+    :func:`log_soft_inside` for log-probabilities.
+
+    Args:
+        e: ``[..., 2]`` tag minus reader, robot frame (m).
+        half_width: σ (m).
+        temperature: τ (m), the width of the soft edge.
+    """
+    return jnp.exp(log_soft_inside(e, half_width, temperature))
+
+
+def _log1mexp(x: jax.Array) -> jax.Array:
+    """``log(1 − eˣ)`` for ``x ≤ 0`` (Mächler 2012), finite with finite gradients; ``x`` clamped below 0."""
+    x = jnp.minimum(x, -(jnp.finfo(jnp.result_type(x)).tiny ** 0.5))
+    near = x > -math.log(2.0)
+    a = jnp.where(near, x, -1.0)
+    b = jnp.where(near, -1.0, x)
+    return jnp.where(near, jnp.log(-jnp.expm1(a)), jnp.log1p(-jnp.exp(b)))
+
+
+class TagMap(NamedTuple):
+    """A map of tags as :func:`soft_detection_log_likelihood` reads it (e.g.
+    :func:`jaxnav.sim.tag_carpet.tag_map` of a carpet).
+
+    Attributes:
+        positions: ``(ids [...], dtype) -> [..., 2]`` world positions (m) of tags by ID.
+        near: ``(pose [3], offsets [B, 2]) -> (ids [B, C], positions [B, C, 2], on [B, C])``: every
+            tag that may lie within the likelihood's window of each reader (``C`` static), ``on``
+            marking real tags.
+        dtype: the dtype of the map's positions (computations run in the wider of it and the poses').
+    """
+
+    positions: Any
+    near: Any
+    dtype: Any
+
+
+def _soft_step(tag_map, pose, dets, offsets, half_width, temperature, log_eps, log_keep, log_base, window):
+    """Bernoulli log-likelihood of one step's detections and non-detections."""
+    dtype = jnp.result_type(pose.dtype, tag_map.dtype)
+    offsets = offsets.astype(dtype)
+    # detections
+    tag = tag_map.positions(dets.ids, dtype)
+    rdr = jnp.clip(dets.readers, 0, offsets.shape[0] - 1)
+    e = robot_frame(pose, tag) - offsets[rdr]
+    lp = log_soft_inside(e, half_width, temperature)
+    hit = jnp.logaddexp(log_eps, log_keep + lp) - log_base
+    ll_det = jnp.sum(jnp.where(dets.mask, hit, 0.0))
+    # non-detections among the tags within ``window`` of each reader
+    ids, pos, on = tag_map.near(pose, offsets)
+    e = robot_frame(pose, pos) - offsets[:, None, :]
+    near = on & jnp.all(jnp.abs(e) < window, axis=-1)
+    readers = jnp.arange(offsets.shape[0], dtype=jnp.int32)
+    seen = jnp.any(
+        dets.mask[None, None, :]
+        & (ids[:, :, None] == dets.ids[None, None, :])
+        & (readers[:, None, None] == dets.readers[None, None, :]),
+        axis=-1,
+    )
+    lp = log_soft_inside(e, half_width, temperature)
+    miss = jnp.logaddexp(log_eps, log_keep + _log1mexp(lp)) - log_base  # → 0 far from the reader
+    ll_miss = jnp.sum(jnp.where(near & ~seen, miss, 0.0))
+    return ll_det + ll_miss
+
+
+def soft_detection_log_likelihood(
+    tag_map: TagMap,
+    poses: jax.Array,
+    detections: TagDetections,
+    offsets: jax.Array,
+    half_width: jax.Array,
+    temperature: jax.Array,
+    window: float,
+    false_rate: float = 1e-6,
+) -> jax.Array:
+    """Differentiable log-likelihood of a run's detections given the path (smooth [W] eq. 3.7 "inside").
+
+    Each (tag, reader) pair within ``window`` of the reader at step ``t`` is a
+    Bernoulli outcome with ``P(detect) = ε + (1 − 2ε)·soft_inside(e, σ, τ)``
+    (``ε = false_rate`` keeps every term finite): detected pairs (the valid
+    slots of ``detections``) add ``log P``, the others ``log(1 − P)``. The
+    result is taken relative to the baseline "no tag detected", i.e. each term
+    is ``log P − log(1 − ε)`` or ``log(1 − P) − log(1 − ε)``: this subtracts
+    the constant ``N·B·log(1 − ε)`` from the full log-likelihood and makes the
+    term of a pair far from the reader vanish. Pairs farther than ``window``
+    (L∞ in the reader frame) are therefore left out with an error of at most
+    about ``e^{−(window − σ)/τ}`` each (and the sum stays continuous as tags
+    cross the window), so take ``window ≥ σ + 20τ``. Smooth in ``half_width``, ``temperature``, ``poses``
+    and the map's tag positions (gradients by ``jax.grad``; the choice of candidate
+    tags is piecewise constant and carries no gradient).
+
+    Args:
+        tag_map: the true map, a :class:`TagMap` whose ``near`` covers ``window``
+            (:func:`jaxnav.sim.tag_carpet.tag_map` of a carpet).
+        poses: ``[T, 3]`` poses at which the detections were made.
+        detections: :class:`TagDetections` with leading axis ``T``.
+        offsets: ``[B, 2]`` reader offsets (m).
+        half_width: σ (m).
+        temperature: τ (m).
+        window: static half-width (m) of the square scored around each reader.
+        false_rate: ε, probability floor of each outcome.
+
+    Returns:
+        Scalar log-likelihood (nats).
+    """
+    if not isinstance(tag_map, TagMap):
+        raise ValueError(f"tag_map must be a TagMap (e.g. jaxnav.sim.tag_carpet.tag_map), got {type(tag_map).__name__}")
+    check_shape("poses", poses, (None, 3))
+    check_shape("offsets", offsets, (None, 2))
+    validate_detections(detections, True, np.shape(offsets)[0], "detections")
+    if np.shape(detections.ids)[0] != np.shape(poses)[0]:
+        raise ValueError(f"detections has {np.shape(detections.ids)[0]} steps but poses has {np.shape(poses)[0]}")
+    check_positive("half_width", half_width)
+    check_positive("temperature", temperature)
+    w = float(window)
+    if not (math.isfinite(w) and w > 0):
+        raise ValueError(f"window must be a finite number > 0 m, got {window!r}")
+    if is_concrete((half_width, temperature)):
+        need = float(np.asarray(half_width)) + 20.0 * float(np.asarray(temperature))
+        if w < need * (1 - 1e-9):
+            raise ValueError(f"window={w} m is too small: take window ≥ half_width + 20·temperature = {need:g} m")
+    eps = float(false_rate)
+    if not 0 < eps < 0.5:
+        raise ValueError(f"false_rate must be in (0, 0.5), got {false_rate!r}")
+    log_eps, log_keep, log_base = math.log(eps), math.log1p(-2 * eps), math.log1p(-eps)
+
+    def step(pose: jax.Array, det: TagDetections) -> jax.Array:
+        return _soft_step(tag_map, pose, det, offsets, half_width, temperature, log_eps, log_keep, log_base, w)
+
+    return jnp.sum(jax.vmap(step)(poses, detections))

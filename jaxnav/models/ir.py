@@ -48,10 +48,10 @@ Layouts
 :class:`EmitterLayout` holds ``positions [E, 2]`` (m, world frame, on the
 ceiling), ``masks [E]`` (ID bitmasks), ``unique [E]`` and ``ids [E]``
 (canonical IDs). Builders: :func:`make_layout` (validated, from code sets),
-:func:`lattice_layout` ([W] Fig. 5.1), :func:`experiment_layout` ([W] §5.4,
-Fig. 5.9: 3 unique + 8 repeated emitters, 4 repeated IDs),
-:func:`unique11_layout` ([W] §5.4.1 / Table 5.2: the same 11 positions, 11
-unique IDs), :func:`without_emitters` (failed emitters, [W] §5.4.5).
+:func:`lattice_layout` ([W] Fig. 5.1), :func:`without_emitters` (failed
+emitters, [W] §5.4.5). The particular layouts of [W]'s experiments (§5.4,
+Fig. 5.9 and Table 5.2) are :func:`jaxnav.sim.ir_world.experiment_layout` and
+:func:`jaxnav.sim.ir_world.unique11_layout`.
 
 Decodability. A receiver that sees two emitters at once receives the union
 of their codes, and where two emitters share a code the two square waves in
@@ -145,8 +145,7 @@ __all__ = [
     "validate_layout",
     "layout_names",
     "lattice_layout",
-    "experiment_layout",
-    "unique11_layout",
+    "assign_unique_sets",
     "without_emitters",
     "min_separation",
     "code_conflicts",
@@ -474,7 +473,7 @@ def _neighbours(positions: np.ndarray, radius: float) -> list[list[int]]:
     return [np.flatnonzero(row < radius).tolist() for row in d]
 
 
-def _assign_unique_sets(
+def assign_unique_sets(
     positions: np.ndarray,
     sets: list[tuple[int, ...] | None],
     size: int | None,
@@ -614,66 +613,7 @@ def lattice_layout(
             positions.append(org + p * np.array([i + 0.5, j + 0.5]))
             sets.append(None)
     pos = np.array(positions)
-    return make_layout(pos, _assign_unique_sets(pos, sets, unique_size, float(conflict_radius)))
-
-
-EXPERIMENT_REPEATED_ROWS = ((1, 2, 4, 5), (4, 5, 1, 2))
-EXPERIMENT_UNIQUE_NAMES = ("39", "67", "68")
-
-
-def experiment_layout(pitch: float = 0.80, origin: Sequence[float] = (0.4, 0.4)) -> EmitterLayout:
-    """The experimental layout of [W] §5.4 (Fig. 5.9): 8 repeated + 3 unique emitters.
-
-    [W] gives the counts (3 unique-ID arrays, 8 repeated-ID LEDs with 4
-    repeated IDs, 7 microcontrollers, 0.80 m between emitters of one type,
-    unique arrays at the centres of squares of four) but no coordinates or
-    code assignment. Our choice: a 4 × 2 block of repeated emitters at
-    ``origin + pitch·(i, j)``, ``i = 0…3``, ``j = 0, 1`` (default origin
-    (0.4, 0.4) m: the block spans x 0.4–2.8 m, y 0.4–1.2 m, and [W]'s start
-    point (300, 800) mm lies at its left edge), with the three unique arrays at
-    the centres of the three squares. Repeated codes: row ``j = 0`` carries
-    1, 2, 4, 5 and row ``j = 1`` carries 4, 5, 1, 2 (left to right), so all
-    neighbours differ and each ID is used twice, ≥ 1.79 m apart. Unique IDs
-    ``39`` ([W]'s example, §5.1), ``67`` and ``68``: pairs (the 4-LED array of
-    Fig. 5.2a can drive two LEDs per code) sharing no code with the repeated
-    LEDs.
-
-    Indices: repeated ``0–7`` row-major (``j·4 + i``), unique ``8–10`` left to right.
-    """
-    check_positive("pitch", pitch)
-    if float(pitch) < CONFLICT_RADIUS:
-        raise ValueError(
-            f"pitch must be at least conflict_radius = {CONFLICT_RADIUS} m (module docstring, "
-            f"'Decodability'), got {pitch}"
-        )
-    org = np.asarray(origin, dtype=np.float64)
-    check_shape("origin", org, (2,))
-    check_finite("origin", org)
-    p = float(pitch)
-    positions, sets = [], []
-    for j in range(2):
-        for i in range(4):
-            positions.append(org + p * np.array([i, j]))
-            sets.append((EXPERIMENT_REPEATED_ROWS[j][i],))
-    for i, name in enumerate(EXPERIMENT_UNIQUE_NAMES):
-        positions.append(org + p * np.array([i + 0.5, 0.5]))
-        sets.append(name)
-    return make_layout(np.array(positions), sets)
-
-
-def unique11_layout(pitch: float = 0.80, origin: Sequence[float] = (0.4, 0.4)) -> EmitterLayout:
-    """The 11-unique-ID configuration of [W] §5.4.1 / Table 5.2 ("11 unique IDs").
-
-    The same 11 positions (and indices) as :func:`experiment_layout` ("the
-    same interval between the emitters as the proposed system"), every
-    emitter a unique pair of codes ([W] lists none): in emitter order, the
-    first unused pair in canonical order sharing no code with an emitter
-    closer than :data:`CONFLICT_RADIUS` — ``12 13 14 15 16 17 18 19`` on the 8
-    lattice points, ``45 25 23`` at the centres.
-    """
-    base = experiment_layout(pitch=pitch, origin=origin)
-    pos = np.asarray(base.positions, np.float64)
-    return make_layout(pos, _assign_unique_sets(pos, [None] * pos.shape[0], 2, CONFLICT_RADIUS))
+    return make_layout(pos, assign_unique_sets(pos, sets, unique_size, float(conflict_radius)))
 
 
 def without_emitters(layout: EmitterLayout, indices: Iterable[int]) -> EmitterLayout:

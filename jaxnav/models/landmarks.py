@@ -32,6 +32,7 @@ from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
 
 __all__ = [
+    "check_filter_inputs",
     "RangeBearingNoise",
     "RangeBearingObs",
     "predict",
@@ -197,6 +198,12 @@ def validate_map_params(motion_model: str, params: Any) -> None:
     if np.shape(params.landmarks)[0] < 1:
         raise ValueError("params.landmarks must hold at least one landmark")
     check_finite("params.landmarks", params.landmarks)
+
+
+def check_filter_inputs(config: Any, params: Any, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:
+    """The input check of every landmark-map filter (:class:`jaxnav.core.filter.FilterSpec`'s ``check_inputs``):
+    :func:`validate_steps` with ``config.motion_model``."""
+    validate_steps(config.motion_model, controls, obs, time_axis)
 
 
 def validate_steps(motion_model: str, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:

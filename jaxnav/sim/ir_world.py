@@ -40,6 +40,7 @@ Units: m, rad, s, V. Shapes are fixed: ``T`` steps, ``R`` receivers.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import partial
 from typing import Any, NamedTuple
 
@@ -61,6 +62,10 @@ from jaxnav.models.motion import omni_body_mean
 from jaxnav.sim import ir_receiver
 
 __all__ = [
+    "EXPERIMENT_REPEATED_ROWS",
+    "EXPERIMENT_UNIQUE_NAMES",
+    "experiment_layout",
+    "unique11_layout",
     "OdometryError",
     "DEFAULT_ODOMETRY_ERROR",
     "IRRun",
@@ -76,6 +81,69 @@ __all__ = [
     "simulate",
     "dead_reckoning",
 ]
+
+
+# ---------------------------------------------------------------------------
+# the emitter layouts of [W] §5.4
+
+
+EXPERIMENT_REPEATED_ROWS = ((1, 2, 4, 5), (4, 5, 1, 2))
+EXPERIMENT_UNIQUE_NAMES = ("39", "67", "68")
+
+
+def experiment_layout(pitch: float = 0.80, origin: Sequence[float] = (0.4, 0.4)) -> ir.EmitterLayout:
+    """The experimental layout of [W] §5.4 (Fig. 5.9): 8 repeated + 3 unique emitters.
+
+    [W] gives the counts (3 unique-ID arrays, 8 repeated-ID LEDs with 4
+    repeated IDs, 7 microcontrollers, 0.80 m between emitters of one type,
+    unique arrays at the centres of squares of four) but no coordinates or
+    code assignment. Our choice: a 4 × 2 block of repeated emitters at
+    ``origin + pitch·(i, j)``, ``i = 0…3``, ``j = 0, 1`` (default origin
+    (0.4, 0.4) m: the block spans x 0.4–2.8 m, y 0.4–1.2 m, and [W]'s start
+    point (300, 800) mm lies at its left edge), with the three unique arrays at
+    the centres of the three squares. Repeated codes: row ``j = 0`` carries
+    1, 2, 4, 5 and row ``j = 1`` carries 4, 5, 1, 2 (left to right), so all
+    neighbours differ and each ID is used twice, ≥ 1.79 m apart. Unique IDs
+    ``39`` ([W]'s example, §5.1), ``67`` and ``68``: pairs (the 4-LED array of
+    Fig. 5.2a can drive two LEDs per code) sharing no code with the repeated
+    LEDs.
+
+    Indices: repeated ``0–7`` row-major (``j·4 + i``), unique ``8–10`` left to right.
+    """
+    check_positive("pitch", pitch)
+    if float(pitch) < ir.CONFLICT_RADIUS:
+        raise ValueError(
+            f"pitch must be at least conflict_radius = {ir.CONFLICT_RADIUS} m (jaxnav.models.ir, "
+            f"'Decodability'), got {pitch}"
+        )
+    org = np.asarray(origin, dtype=np.float64)
+    check_shape("origin", org, (2,))
+    check_finite("origin", org)
+    p = float(pitch)
+    positions, sets = [], []
+    for j in range(2):
+        for i in range(4):
+            positions.append(org + p * np.array([i, j]))
+            sets.append((EXPERIMENT_REPEATED_ROWS[j][i],))
+    for i, name in enumerate(EXPERIMENT_UNIQUE_NAMES):
+        positions.append(org + p * np.array([i + 0.5, 0.5]))
+        sets.append(name)
+    return ir.make_layout(np.array(positions), sets)
+
+
+def unique11_layout(pitch: float = 0.80, origin: Sequence[float] = (0.4, 0.4)) -> ir.EmitterLayout:
+    """The 11-unique-ID configuration of [W] §5.4.1 / Table 5.2 ("11 unique IDs").
+
+    The same 11 positions (and indices) as :func:`experiment_layout` ("the
+    same interval between the emitters as the proposed system"), every
+    emitter a unique pair of codes ([W] lists none): in emitter order, the
+    first unused pair in canonical order sharing no code with an emitter
+    closer than :data:`jaxnav.models.ir.CONFLICT_RADIUS` — ``12 13 14 15 16 17 18 19`` on the 8
+    lattice points, ``45 25 23`` at the centres.
+    """
+    base = experiment_layout(pitch=pitch, origin=origin)
+    pos = np.asarray(base.positions, np.float64)
+    return ir.make_layout(pos, ir.assign_unique_sets(pos, [None] * pos.shape[0], 2, ir.CONFLICT_RADIUS))
 
 
 class OdometryError(NamedTuple):
@@ -126,7 +194,7 @@ class IRRun(NamedTuple):
 EXPERIMENT_WAYPOINTS = np.array(
     [[0.3, 0.8], [2.9, 0.8], [2.9, 1.2], [0.3, 1.2], [0.3, 0.4], [2.9, 0.4], [2.9, 0.8]], np.float64
 )
-"""Closed loop (m) under :func:`jaxnav.models.ir.experiment_layout` (default origin and pitch).
+"""Closed loop (m) under :func:`experiment_layout` (default origin and pitch).
 
 [W] Fig. 5.10 draws the predetermined trajectory but gives no coordinates
 besides the start, (300, 800) mm. Ours starts there, drives east under the
@@ -165,7 +233,7 @@ ROTATION_WAYPOINTS = np.array(
     ],
     np.float64,
 )
-"""Open path from E to K with five turns on the spot (m, m, rad), under :func:`jaxnav.models.ir.experiment_layout`.
+"""Open path from E to K with five turns on the spot (m, m, rad), under :func:`experiment_layout`.
 
 [W] §5.4.3 (Fig. 5.14) drives "from E point to K point" and changes the
 orientation "five times at the marked points", without coordinates. Ours
@@ -181,7 +249,7 @@ def layout_area(layout: ir.EmitterLayout, margin: float = 0.4) -> tuple[float, f
     """``(x_min, x_max, y_min, y_max)`` (m): the emitters' bounding box grown by ``margin``.
 
     With the default 0.4 m (half the 0.80 m pitch) and
-    :func:`~jaxnav.models.ir.experiment_layout` this is (0, 3.2, 0, 1.6) m:
+    :func:`experiment_layout` this is (0, 3.2, 0, 1.6) m:
     the area over which the filter's particles start uniform ([W] §5.2).
     """
     check_nonnegative("margin", margin)
@@ -256,7 +324,7 @@ def spot_grid(
 
     [W] §5.4.2 marks 70 spots (Fig. 5.12, no coordinates). Ours: the default
     14 × 5 grid, 0.2 m apart, over x ∈ [0.3, 2.9] m and y ∈ [0.4, 1.2] m,
-    the band under :func:`jaxnav.models.ir.experiment_layout` the emitters
+    the band under :func:`experiment_layout` the emitters
     cover (rows of repeated emitters at y = 0.4 and 1.2 m, unique arrays at
     0.8 m).
     """

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -23,7 +23,7 @@ from jaxnav.core.weights import wrap_angle
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
 
-__all__ = ["SimulatedRun", "square_room_landmarks", "loop_controls", "simulate"]
+__all__ = ["SimulatedRun", "square_room_landmarks", "simulate"]
 
 
 class SimulatedRun(NamedTuple):
@@ -57,18 +57,13 @@ def square_room_landmarks(size: float = 10.0, num: int = 8) -> jax.Array:
     return jnp.stack([x, y], axis=-1)
 
 
-def loop_controls(num_steps: int, speed: float = 0.5, turn_rate: float = 0.15, dt: float = 0.25) -> jax.Array:
-    """Constant velocity-model controls ``[T, 3] = (v [m/s], ω [rad/s], Δt [s])``: a circle."""
-    return jnp.tile(jnp.asarray([speed, turn_rate, dt], jnp.float32), (int(num_steps), 1))
-
-
 @partial(jax.jit, static_argnames=("motion_model",))
 def simulate(
     key: jax.Array,
     landmarks: jax.Array,
     initial_pose: jax.Array,
     controls: jax.Array,
-    motion_noise,
+    motion_noise: Any,
     sensor_noise: lm.RangeBearingNoise,
     motion_model: str = "velocity",
     max_range: float | jax.Array = math.inf,

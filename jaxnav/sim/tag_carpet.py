@@ -1,4 +1,6 @@
-"""HF-RFID world simulator: tag carpets, reader arrays, trajectories ([W] ch. 3–4).
+"""HF-RFID world simulator: tag carpets, reader arrays and drives over them ([W] ch. 3–4).
+
+The commanded trajectories (rectangle, random) are :mod:`jaxnav.sim.trajectories`.
 
 Overview
 --------
@@ -66,9 +68,10 @@ Smooth relaxation
 -----------------
 For gradient work the footprint indicator is replaced by
 ``Π_axes s((σ − e)/τ)·s((σ + e)/τ)`` (``s`` the logistic function), which
-tends to the indicator as τ → 0 (:func:`soft_inside`), and a run's detections
+tends to the indicator as τ → 0 (:func:`jaxnav.models.hf_rfid.soft_inside`), and a run's detections
 and non-detections are scored as Bernoulli outcomes
-(:func:`soft_detection_log_likelihood`), differentiable in σ, τ and the poses.
+(:func:`jaxnav.models.hf_rfid.soft_detection_log_likelihood`, which reads the carpet
+through :func:`tag_map`), differentiable in σ, τ and the poses.
 
 Units are SI (m, rad, s); arrays are float32 unless x64 is enabled.
 """
@@ -77,17 +80,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import check_finite, check_nonnegative, check_positive, check_shape, is_concrete
-from jaxnav.core.weights import wrap_angle
+from jaxnav.core.validation import check_finite, check_nonnegative, check_shape, is_concrete
 from jaxnav.models import hf_rfid
-from jaxnav.models.motion import OmniNoise, get_motion_model, omni_mean
+from jaxnav.models.motion import OmniNoise, omni_mean
+from jaxnav.sim.trajectories import rectangle_controls
 
 __all__ = [
     "CarpetLayout",
@@ -104,14 +106,9 @@ __all__ = [
     "detection_capacity",
     "detect",
     "detect_brute_force",
-    "rectangle_controls",
-    "random_controls",
-    "integrate_controls",
     "simulate",
     "kidnapping_scenario",
-    "soft_inside",
-    "log_soft_inside",
-    "soft_detection_log_likelihood",
+    "tag_map",
 ]
 
 DENSITY_PITCH = {100: 0.10, 16: 0.25, 4: 0.50}
@@ -310,7 +307,7 @@ def candidates_per_axis(layout: CarpetLayout, side: float) -> int:
     return int(math.floor(2.0 * reach / layout.pitch)) + 2
 
 
-def detection_capacity(layout: CarpetLayout, side: float, offsets) -> int:
+def detection_capacity(layout: CarpetLayout, side: float, offsets: Any) -> int:
     """Upper bound on detections in one step by the ``B`` readers of ``offsets [B, 2]``.
 
     Per reader, the tags inside an open square of side ``s`` at any heading are
@@ -478,7 +475,7 @@ def detect(
     return _detect_jit(carpet, jnp.asarray(pose), readers.offsets, readers.half_width, side, n, k)
 
 
-def detect_brute_force(positions, pose, readers: hf_rfid.HFReaderParams) -> tuple[np.ndarray, np.ndarray]:
+def detect_brute_force(positions: Any, pose: Any, readers: hf_rfid.HFReaderParams) -> tuple[np.ndarray, np.ndarray]:
     """NumPy float64 reference: test every tag against every reader.
 
     Args:
@@ -502,185 +499,6 @@ def detect_brute_force(positions, pose, readers: hf_rfid.HFReaderParams) -> tupl
     inside = (np.abs(ex) < hw) & (np.abs(ey) < hw)
     reader_ids, tag_ids_ = np.nonzero(inside)
     return tag_ids_.astype(np.int64), reader_ids.astype(np.int64)
-
-
-# ---------------------------------------------------------------------------
-# trajectories
-
-
-def _check_speed(name: str, value) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0 m/s, got {value!r} ([W] drives at 0.1–0.4 m/s)")
-    return v
-
-
-def _check_dt(dt) -> float:
-    d = float(dt)
-    if not (math.isfinite(d) and d > 0):
-        raise ValueError(f"dt must be a finite number > 0 s, got {dt!r}")
-    return d
-
-
-def rectangle_controls(
-    width: float,
-    height: float,
-    speed: float = 0.2,
-    dt: float = 0.1,
-    laps: int = 3,
-    start: tuple[float, float] = (0.0, 0.0),
-    turn_at_corners: bool = True,
-    turn_rate: float = math.pi / 4,
-) -> tuple[jax.Array, jax.Array]:
-    """The "predetermined" trajectory of [W] §3.4.1: a rectangle driven ``laps`` times.
-
-    The robot starts at corner ``start`` heading +x (θ = 0) and drives
-    counter-clockwise: +x for ``width``, +y for ``height``, −x, −y. Each edge
-    takes ``n = max(1, round(L/(speed·Δt)))`` steps at speed ``L/(n·Δt)``
-    (exactly ``speed`` when ``L`` is a multiple of ``speed·Δt``; otherwise within
-    a relative ``1/(2n) ≤ speed·Δt/(2L − speed·Δt)``), so every lap closes exactly. With
-    ``turn_at_corners`` the robot turns in place by +π/2 at each corner at
-    about ``turn_rate`` rad/s (an integer number of steps; exactly π/2), so it
-    always faces its direction of travel; otherwise it keeps θ = 0 and drives
-    sideways (it is omnidirectional).
-
-    Returns:
-        ``(start_pose [3], controls [T, 4])``, rows ``(v_x, v_y, ω, Δt)`` in the
-        world frame (the ``omni`` motion model).
-    """
-    w, h = float(width), float(height)
-    if not (math.isfinite(w) and math.isfinite(h) and w > 0 and h > 0):
-        raise ValueError(f"width and height must be finite numbers > 0 m, got {width!r}, {height!r}")
-    v = _check_speed("speed", speed)
-    d = _check_dt(dt)
-    if isinstance(laps, bool) or not isinstance(laps, (int, np.integer)) or laps < 1:
-        raise ValueError(f"laps must be a positive integer, got {laps!r}")
-    rate = float(turn_rate)
-    if turn_at_corners and not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"turn_rate must be a finite number > 0 rad/s, got {turn_rate!r}")
-    sx, sy = (float(a) for a in start)
-    rows = []
-    for length, (ux, uy) in zip((w, h, w, h), ((1, 0), (0, 1), (-1, 0), (0, -1))):
-        n = max(1, int(round(length / (v * d))))
-        spd = length / (n * d)
-        rows.append(np.tile([ux * spd, uy * spd, 0.0, d], (n, 1)))
-        if turn_at_corners:
-            nt = max(1, int(math.ceil((math.pi / 2) / (rate * d) - 1e-9)))
-            rows.append(np.tile([0.0, 0.0, (math.pi / 2) / (nt * d), d], (nt, 1)))
-    lap = np.concatenate(rows, axis=0)
-    controls = np.tile(lap, (int(laps), 1))
-    dtype = _float_dtype()
-    return jnp.asarray([sx, sy, 0.0], dtype), jnp.asarray(controls, dtype)
-
-
-@partial(jax.jit, static_argnames=("num_steps",))
-def _random_controls(key, lo, hi, speed_lo, speed_hi, dt, start_pose, turn_rate, heading_time, num_steps):
-    margin = 1.001 * speed_hi * dt
-    inner_lo, inner_hi = lo + margin, hi - margin
-
-    def body(carry, t):
-        pose, waypoint, speed = carry
-        k_w, k_s = jax.random.split(jax.random.fold_in(key, t))
-        d = waypoint - pose[:2]
-        dist = jnp.sqrt(jnp.sum(d * d))
-        arrived = dist < speed * dt
-        waypoint = jnp.where(arrived, jax.random.uniform(k_w, (2,), lo.dtype, inner_lo, inner_hi), waypoint)
-        speed = jnp.where(arrived, jax.random.uniform(k_s, (), lo.dtype, speed_lo, speed_hi), speed)
-        d = waypoint - pose[:2]
-        dist = jnp.sqrt(jnp.sum(d * d))
-        safe = jnp.where(dist > 0, dist, 1.0)
-        vel = jnp.where(dist > 0, speed * d / safe, jnp.stack([speed, jnp.zeros_like(speed)]))
-        # heading turns smoothly (bounded rate) towards the direction of travel
-        err = wrap_angle(jnp.arctan2(vel[1], vel[0]) - pose[2])
-        omega = jnp.clip(err / jnp.maximum(heading_time, dt), -turn_rate, turn_rate)
-        u = jnp.stack([vel[0], vel[1], omega, dt])
-        return (omni_mean(pose, u), waypoint, speed), u
-
-    init = (start_pose, start_pose[:2], speed_lo)
-    _, controls = jax.lax.scan(body, init, jnp.arange(num_steps))
-    return controls
-
-
-def random_controls(
-    key: jax.Array,
-    bounds: tuple[float, float, float, float] = (0.0, 0.0, 2.0, 2.0),
-    num_steps: int = 1000,
-    speed_range: tuple[float, float] = (0.1, 0.4),
-    dt: float = 0.1,
-    start: tuple[float, float] | None = None,
-    turn_rate: float = 1.0,
-    heading_time: float = 0.5,
-) -> tuple[jax.Array, jax.Array]:
-    """The random trajectory of [W] §3.4.2: straight runs between random waypoints.
-
-    Waypoints are uniform in ``bounds`` shrunk by ``speed_max·Δt``; the robot
-    drives straight at a speed uniform in ``speed_range`` (m/s; [W]: 0.1–0.4)
-    and draws a new waypoint and speed when it is within one step of the
-    current one. Every position stays inside ``bounds``: the path runs on
-    segments between points of the box and overshoots a waypoint by less than
-    one step. The heading (an omnidirectional robot need not face its direction
-    of travel) turns towards the direction of travel at ``err/heading_time``,
-    at most ``turn_rate`` rad/s, so it changes smoothly.
-
-    Args:
-        key: PRNG key.
-        bounds: ``(xmin, ymin, xmax, ymax)`` (m).
-        num_steps: ``T``.
-        speed_range: ``(min, max)`` speed (m/s), ``0 < min ≤ max``.
-        dt: step (s).
-        start: ``(x, y)`` start inside ``bounds``; default the centre. Start heading 0.
-        turn_rate: largest ``|ω|`` (rad/s).
-        heading_time: time constant of the heading (s).
-
-    Returns:
-        ``(start_pose [3], controls [T, 4])`` rows ``(v_x, v_y, ω, Δt)``, world frame.
-    """
-    try:
-        xmin, ymin, xmax, ymax = (float(b) for b in bounds)
-    except (TypeError, ValueError):
-        raise ValueError(f"bounds must be (xmin, ymin, xmax, ymax) in m, got {bounds!r}") from None
-    if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) or num_steps < 1:
-        raise ValueError(f"num_steps must be a positive integer, got {num_steps!r}")
-    lo_s = _check_speed("speed_range[0]", speed_range[0])
-    hi_s = _check_speed("speed_range[1]", speed_range[1])
-    if hi_s < lo_s:
-        raise ValueError(f"speed_range must be (min, max) with min ≤ max, got {speed_range!r}")
-    d = _check_dt(dt)
-    margin = 1.001 * hi_s * d
-    if not (xmax - xmin > 2 * margin and ymax - ymin > 2 * margin):
-        raise ValueError(f"bounds {bounds!r} are too small: each side must exceed 2·speed_max·dt = {2 * margin:g} m")
-    if start is None:
-        start = (0.5 * (xmin + xmax), 0.5 * (ymin + ymax))
-    sx, sy = (float(a) for a in start)
-    if not (xmin <= sx <= xmax and ymin <= sy <= ymax):
-        raise ValueError(f"start {start!r} must lie inside bounds {bounds!r}")
-    rate = float(turn_rate)
-    if not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"turn_rate must be a finite number > 0 rad/s, got {turn_rate!r}")
-    ht = float(heading_time)
-    if not (math.isfinite(ht) and ht > 0):
-        raise ValueError(f"heading_time must be a finite number > 0 s, got {heading_time!r}")
-    dtype = _float_dtype()
-    f = lambda v: jnp.asarray(v, dtype)  # noqa: E731
-    start_pose = f([sx, sy, 0.0])
-    controls = _random_controls(
-        key, f([xmin, ymin]), f([xmax, ymax]), f(lo_s), f(hi_s), f(d), start_pose, f(rate), f(ht), int(num_steps)
-    )
-    return start_pose, controls
-
-
-def integrate_controls(start_pose: jax.Array, controls: jax.Array, motion_model: str = "omni") -> jax.Array:
-    """``[T, 3]`` poses after each control row, integrated with the noise-free model (``omni`` or ``omni_body``)."""
-    if motion_model not in ("omni", "omni_body"):
-        raise ValueError(f"motion_model must be 'omni' or 'omni_body', got {motion_model!r}")
-    mean = get_motion_model(motion_model).mean
-
-    def body(pose, u):
-        pose = mean(pose, u)
-        return pose, pose
-
-    _, poses = jax.lax.scan(body, jnp.asarray(start_pose, controls.dtype), controls)
-    return poses
 
 
 # ---------------------------------------------------------------------------
@@ -750,7 +568,7 @@ def simulate(
     readers: hf_rfid.HFReaderParams,
     start_pose: jax.Array,
     controls: jax.Array,
-    odometry_sd,
+    odometry_sd: Any,
     max_detections: int | None = None,
     motion_model: str = "omni",
     kidnap: Kidnap | None = None,
@@ -771,7 +589,7 @@ def simulate(
         carpet: :class:`TagCarpet`.
         readers: reader array (:func:`jaxnav.models.hf_rfid.reader_params`).
         start_pose: ``[3]`` pose before the first step.
-        controls: ``[T, 4]`` world-frame controls (:func:`rectangle_controls`, :func:`random_controls`).
+        controls: ``[T, 4]`` world-frame controls (:func:`jaxnav.sim.trajectories.rectangle_controls`, :func:`jaxnav.sim.trajectories.random_controls`).
         odometry_sd: ``[3]`` σ of [W] eq. 3.6 (m/s, m/s, rad/s), or an
             :class:`~jaxnav.models.motion.OmniNoise`.
         max_detections: ``K``; default and minimum :func:`detection_capacity`.
@@ -836,7 +654,7 @@ def kidnapping_scenario(
     key: jax.Array,
     carpet: TagCarpet,
     readers: hf_rfid.HFReaderParams,
-    odometry_sd,
+    odometry_sd: Any,
     width: float = 1.0,
     height: float = 1.0,
     start: tuple[float, float] | None = None,
@@ -852,7 +670,7 @@ def kidnapping_scenario(
 ) -> HFRun:
     """The kidnapping experiment of [W] §3.4.3 (Fig. 3.12) on a rectangle.
 
-    The robot drives the rectangle of :func:`rectangle_controls` from A
+    The robot drives the rectangle of :func:`jaxnav.sim.trajectories.rectangle_controls` from A
     (``start``) to B, the pose at fraction ``kidnap_from`` of the first lap; at
     the next step it is teleported to C, the pose it had at fraction
     ``kidnap_to < kidnap_from`` of that lap (a place already mapped), and
@@ -861,7 +679,7 @@ def kidnapping_scenario(
 
     Args:
         start: lower-left corner (m); default the carpet origin + (0.25, 0.25).
-        Others as in :func:`rectangle_controls` and :func:`simulate`.
+        Others as in :func:`jaxnav.sim.trajectories.rectangle_controls` and :func:`simulate`.
     """
     if not 0.0 <= float(kidnap_to) < float(kidnap_from) <= 1.0:
         raise ValueError(
@@ -891,140 +709,30 @@ def kidnapping_scenario(
 
 
 # ---------------------------------------------------------------------------
-# smooth relaxation
+# the carpet as the soft detection likelihood reads it
 
 
-def log_soft_inside(e: jax.Array, half_width: jax.Array, temperature: jax.Array) -> jax.Array:
-    """``log Π_{a∈{x,y}} s((σ − e_a)/τ)·s((σ + e_a)/τ)`` for ``e [..., 2]`` (m); ``s`` the logistic."""
-    hw = jnp.asarray(half_width)
-    tau = jnp.asarray(temperature)
-    z = jax.nn.log_sigmoid((hw - e) / tau) + jax.nn.log_sigmoid((hw + e) / tau)
-    return jnp.sum(z, axis=-1)
+def tag_map(carpet: TagCarpet, window: float) -> hf_rfid.TagMap:
+    """``carpet`` as a :class:`~jaxnav.models.hf_rfid.TagMap` for
+    :func:`jaxnav.models.hf_rfid.soft_detection_log_likelihood` with this ``window`` (m).
 
-
-def soft_inside(e: jax.Array, half_width: jax.Array, temperature: jax.Array) -> jax.Array:
-    """Smooth footprint indicator in (0, 1): → ``1{|e_x| < σ, |e_y| < σ}`` as ``τ → 0``.
-
-    Far outside the footprint the value underflows to 0 in floating point; use
-    :func:`log_soft_inside` for log-probabilities.
-
-    Args:
-        e: ``[..., 2]`` tag minus reader, robot frame (m).
-        half_width: σ (m).
-        temperature: τ (m), the width of the soft edge.
-    """
-    return jnp.exp(log_soft_inside(e, half_width, temperature))
-
-
-def _log1mexp(x: jax.Array) -> jax.Array:
-    """``log(1 − eˣ)`` for ``x ≤ 0`` (Mächler 2012), finite with finite gradients; ``x`` clamped below 0."""
-    x = jnp.minimum(x, -(jnp.finfo(jnp.result_type(x)).tiny ** 0.5))
-    near = x > -math.log(2.0)
-    a = jnp.where(near, x, -1.0)
-    b = jnp.where(near, -1.0, x)
-    return jnp.where(near, jnp.log(-jnp.expm1(a)), jnp.log1p(-jnp.exp(b)))
-
-
-def _soft_step(layout, jitter, pose, dets, offsets, half_width, temperature, log_eps, log_keep, log_base, window, n):
-    """Bernoulli log-likelihood of one step's detections and non-detections."""
-    dtype = jnp.result_type(pose.dtype, jitter.dtype)
-    offsets = offsets.astype(dtype)
-    # detections
-    ix, iy = tag_indices(layout, jnp.clip(dets.ids, 0, layout.num_tags - 1))
-    tag = _nominal(layout, ix, iy, dtype) + jnp.take(jitter, jnp.clip(dets.ids, 0, layout.num_tags - 1), axis=0)
-    rdr = jnp.clip(dets.readers, 0, offsets.shape[0] - 1)
-    e = hf_rfid.robot_frame(pose, tag) - offsets[rdr]
-    lp = log_soft_inside(e, half_width, temperature)
-    hit = jnp.logaddexp(log_eps, log_keep + lp) - log_base
-    ll_det = jnp.sum(jnp.where(dets.mask, hit, 0.0))
-    # non-detections among the tags within ``window`` of each reader
-    ids, pos, on = _candidates(layout, jitter, pose, offsets, window, n)
-    e = hf_rfid.robot_frame(pose, pos) - offsets[:, None, :]
-    near = on & jnp.all(jnp.abs(e) < window, axis=-1)
-    readers = jnp.arange(offsets.shape[0], dtype=jnp.int32)
-    seen = jnp.any(
-        dets.mask[None, None, :]
-        & (ids[:, :, None] == dets.ids[None, None, :])
-        & (readers[:, None, None] == dets.readers[None, None, :]),
-        axis=-1,
-    )
-    lp = log_soft_inside(e, half_width, temperature)
-    miss = jnp.logaddexp(log_eps, log_keep + _log1mexp(lp)) - log_base  # → 0 far from the reader
-    ll_miss = jnp.sum(jnp.where(near & ~seen, miss, 0.0))
-    return ll_det + ll_miss
-
-
-def soft_detection_log_likelihood(
-    carpet: TagCarpet,
-    poses: jax.Array,
-    detections: hf_rfid.TagDetections,
-    offsets: jax.Array,
-    half_width: jax.Array,
-    temperature: jax.Array,
-    window: float,
-    false_rate: float = 1e-6,
-) -> jax.Array:
-    """Differentiable log-likelihood of a run's detections given the path (smooth [W] eq. 3.7 "inside").
-
-    Each (tag, reader) pair within ``window`` of the reader at step ``t`` is a
-    Bernoulli outcome with ``P(detect) = ε + (1 − 2ε)·soft_inside(e, σ, τ)``
-    (``ε = false_rate`` keeps every term finite): detected pairs (the valid
-    slots of ``detections``) add ``log P``, the others ``log(1 − P)``. The
-    result is taken relative to the baseline "no tag detected", i.e. each term
-    is ``log P − log(1 − ε)`` or ``log(1 − P) − log(1 − ε)``: this subtracts
-    the constant ``N·B·log(1 − ε)`` from the full log-likelihood and makes the
-    term of a pair far from the reader vanish. Pairs farther than ``window``
-    (L∞ in the reader frame) are therefore left out with an error of at most
-    about ``e^{−(window − σ)/τ}`` each (and the sum stays continuous as tags
-    cross the window), so take ``window ≥ σ + 20τ``. Smooth in ``half_width``, ``temperature``, ``poses``
-    and the carpet's jitter (gradients by ``jax.grad``; the choice of candidate
-    tags is piecewise constant and carries no gradient).
-
-    Args:
-        carpet: :class:`TagCarpet` (the true map).
-        poses: ``[T, 3]`` poses at which the detections were made.
-        detections: :class:`~jaxnav.models.hf_rfid.TagDetections` with leading axis ``T``.
-        offsets: ``[B, 2]`` reader offsets (m).
-        half_width: σ (m).
-        temperature: τ (m).
-        window: static half-width (m) of the square scored around each reader.
-        false_rate: ε, probability floor of each outcome.
-
-    Returns:
-        Scalar log-likelihood (nats).
+    ``positions`` looks the tags up by ID (lattice arithmetic plus the jitter); ``near``
+    enumerates the lattice candidates of a square of half-width ``window`` around each reader
+    (``candidates_per_axis(layout, 2·window)²`` per reader, a static count).
     """
     _check_carpet(carpet)
-    check_shape("poses", poses, (None, 3))
-    check_shape("offsets", offsets, (None, 2))
-    hf_rfid.validate_detections(detections, True, np.shape(offsets)[0], "detections")
-    if np.shape(detections.ids)[0] != np.shape(poses)[0]:
-        raise ValueError(f"detections has {np.shape(detections.ids)[0]} steps but poses has {np.shape(poses)[0]}")
-    check_positive("half_width", half_width)
-    check_positive("temperature", temperature)
     w = float(window)
     if not (math.isfinite(w) and w > 0):
         raise ValueError(f"window must be a finite number > 0 m, got {window!r}")
-    if is_concrete((half_width, temperature)):
-        need = float(np.asarray(half_width)) + 20.0 * float(np.asarray(temperature))
-        if w < need * (1 - 1e-9):
-            raise ValueError(f"window={w} m is too small: take window ≥ half_width + 20·temperature = {need:g} m")
-    eps = float(false_rate)
-    if not 0 < eps < 0.5:
-        raise ValueError(f"false_rate must be in (0, 0.5), got {false_rate!r}")
-    n = candidates_per_axis(carpet.layout, 2.0 * w)
-    layout = carpet.layout
-    step = lambda pose, det: _soft_step(  # noqa: E731
-        layout,
-        carpet.jitter,
-        pose,
-        det,
-        offsets,
-        half_width,
-        temperature,
-        math.log(eps),
-        math.log1p(-2 * eps),
-        math.log1p(-eps),
-        w,
-        n,
-    )
-    return jnp.sum(jax.vmap(step)(poses, detections))
+    layout, jitter = carpet.layout, carpet.jitter
+    n = candidates_per_axis(layout, 2.0 * w)
+
+    def positions(ids: jax.Array, dtype: Any) -> jax.Array:
+        safe = jnp.clip(ids, 0, layout.num_tags - 1)
+        ix, iy = tag_indices(layout, safe)
+        return _nominal(layout, ix, iy, dtype) + jnp.take(jitter, safe, axis=0)
+
+    def near(pose: jax.Array, offsets: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        return _candidates(layout, jitter, pose, offsets, w, n)
+
+    return hf_rfid.TagMap(positions, near, jitter.dtype)

@@ -809,7 +809,7 @@ def anchor_power_scale(
 
     ``a`` is :func:`jaxnav.models.uhf_rfid.power_scale` at each read's reader pose
     and wavelength; same shape as ``reads.rssi``. Feed it with the flattened
-    reads and mask to :func:`jaxnav.models.uhf_rfid.estimate_gamma` to fit
+    reads and mask to :func:`jaxnav.models.uhf_calibration.estimate_gamma` to fit
     ``(k, θ)`` from the anchor ([A] §4.3.1). Under strong multipath the fit
     absorbs the wall term ``|h_mp|⁴`` into ``(k, θ)``, as it does on real data.
     """

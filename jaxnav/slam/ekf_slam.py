@@ -83,15 +83,14 @@ slots; under ``vmap`` the branches become selects and every slot costs
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import (
     check_choice,
     check_covariance,
@@ -111,6 +110,7 @@ __all__ = [
     "EKFSLAMInfo",
     "UNSEEN_VARIANCE",
     "init",
+    "kernel",
     "step",
     "run",
 ]
@@ -225,7 +225,7 @@ def validate_params(config: EKFSLAMConfig, params: EKFSLAMParams) -> None:
     lm.validate_noise(params.sensor)
 
 
-def validate_state(config: EKFSLAMConfig, state: EKFSLAMState) -> None:
+def validate_state(config: EKFSLAMConfig, params: Any, state: EKFSLAMState) -> None:
     """Shapes, finiteness and positive definiteness of a joint state."""
     if not isinstance(state, EKFSLAMState):
         raise ValueError(f"state must be an EKFSLAMState, got {type(state).__name__}")
@@ -265,6 +265,7 @@ def _landmark_prior(config: EKFSLAMConfig, landmarks, landmark_cov, known, dtype
 
 
 def init(
+    key: jax.Array | None,
     config: EKFSLAMConfig,
     params: EKFSLAMParams,
     initial_pose: jax.Array,
@@ -301,7 +302,7 @@ def init(
     mean = jnp.concatenate([jnp.asarray(initial_pose, dtype), means.reshape(-1)])
     mean = mean.at[2].set(wrap_angle(mean[2]))
     state = EKFSLAMState(mean, kalman.symmetrize(cov), seen)
-    validate_state(config, state)
+    validate_state(config, params, state)
     return state
 
 
@@ -418,9 +419,15 @@ def _correct(mean, cov, seen, obs: lm.RangeBearingObs, r, gate):
     return mean, cov, seen, nis, jnp.sum(ll), accepted, counts
 
 
-def _step(
-    state: EKFSLAMState, config: EKFSLAMConfig, params: EKFSLAMParams, control, obs
+def kernel(
+    key: jax.Array | None,
+    state: EKFSLAMState,
+    config: EKFSLAMConfig,
+    params: EKFSLAMParams,
+    control: jax.Array,
+    obs: lm.RangeBearingObs,
 ) -> tuple[EKFSLAMState, EKFSLAMInfo]:
+    """One EKF-SLAM step, pure and traceable (:func:`step` is it validated and jitted); the key is not used."""
     model = get_motion_model(config.motion_model)
     mean, cov = _predict(state.mean, state.cov, model, control, params.motion)
     r = jnp.diag(params.sensor.sd**2).astype(mean.dtype)
@@ -446,37 +453,19 @@ def _step(
     return EKFSLAMState(mean, cov, seen), info
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",))
-
-
-def step(
-    state: EKFSLAMState,
-    config: EKFSLAMConfig,
-    params: EKFSLAMParams,
-    control: jax.Array,
-    observation: lm.RangeBearingObs,
-) -> tuple[EKFSLAMState, EKFSLAMInfo]:
-    """One EKF-SLAM step ([A] Alg. 4); validated on the host, then jitted."""
-    validate_params(config, params)
-    validate_state(config, state)
-    lm.validate_steps(config.motion_model, control, observation, time_axis=False)
-    return _step_jit(state, config, params, control, observation)
-
-
-@partial(jax.jit, static_argnames=("config",))
-def _run_jit(config: EKFSLAMConfig, params: EKFSLAMParams, controls, observations, state):
-    return scan_filter(_step, config, params, controls, observations, state)
-
-
-def run(
-    config: EKFSLAMConfig,
-    params: EKFSLAMParams,
-    controls: jax.Array,
-    observations: lm.RangeBearingObs,
-    initial_state: EKFSLAMState,
-) -> tuple[EKFSLAMState, EKFSLAMInfo]:
-    """Filter a whole sequence in one ``lax.scan``; ``trace.estimate`` is ``[T, 3]``, ``trace.landmarks`` ``[T, M, 2]``."""
-    validate_params(config, params)
-    validate_state(config, initial_state)
-    lm.validate_steps(config.motion_model, controls, observations, time_axis=True)
-    return _run_jit(config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="EKF-SLAM",
+        kernel=kernel,
+        config_type=EKFSLAMConfig,
+        check_params=validate_params,
+        check_state=validate_state,
+        check_inputs=lm.check_filter_inputs,
+        time_inputs=("controls", "observations"),
+        deterministic=True,
+        step_doc="""One EKF-SLAM step ([A] Alg. 4). Deterministic: ``key`` is not used (``None`` is accepted).""",
+        run_doc="""EKF-SLAM over a sequence: ``trace.estimate`` is ``[T, 3]``, ``trace.landmarks`` ``[T, M, 2]``.
+        Deterministic: ``key`` is not used (``None`` is accepted).""",
+    ),
+    __name__,
+)

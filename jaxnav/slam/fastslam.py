@@ -57,7 +57,7 @@ Interface::
 
     state = fastslam.init(key, config, params, initial_pose)
     state, info = fastslam.step(key, state, config, params, control, observation)
-    final_state, trace = fastslam.run(key, config, params, controls, observations, state)
+    final_state, trace = fastslam.run(key, state, config, params, controls, observations)
     landmarks, seen = fastslam.map_estimate(state)
 """
 
@@ -72,7 +72,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath, kalman, resampling, weights
-from jaxnav.core.batch import scan_filter
+from jaxnav.core import filter as filter_api
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -95,9 +96,12 @@ __all__ = [
     "FastSLAMState",
     "FastSLAMInfo",
     "init",
+    "kernel",
     "step",
     "run",
     "map_estimate",
+    "update_landmarks",
+    "update_landmarks_in_order",
 ]
 
 _POSE_ANGLE_DIMS = (2,)
@@ -236,7 +240,9 @@ class FastSLAMState(NamedTuple):
     seen: jax.Array
 
 
-class FastSLAMInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class FastSLAMInfo(PFInfo):
     """Per-step diagnostics.
 
     Attributes:
@@ -249,11 +255,6 @@ class FastSLAMInfo(NamedTuple):
         num_new: landmarks initialised this step.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     num_ignored: jax.Array
     num_new: jax.Array
 
@@ -269,7 +270,7 @@ def _validate_params(config: FastSLAMConfig, params: FastSLAMParams) -> None:
     config.obs_model.validate(params.sensor)
 
 
-def _validate_state(config: FastSLAMConfig, state: FastSLAMState) -> None:
+def _validate_state(config: FastSLAMConfig, params: Any, state: FastSLAMState) -> None:
     n, m, d = config.num_particles, config.num_landmarks, config.obs_model.landmark_dim
     check_shape("state.poses", state.poses, (n, 3))
     check_shape("state.log_weights", state.log_weights, (n,))
@@ -278,7 +279,9 @@ def _validate_state(config: FastSLAMConfig, state: FastSLAMState) -> None:
     check_shape("state.seen", state.seen, (m,))
 
 
-def _validate_inputs(config: FastSLAMConfig, controls: jax.Array, obs: Any, time_axis: bool) -> None:
+def _validate_inputs(
+    config: FastSLAMConfig, params: FastSLAMParams, controls: jax.Array, obs: Any, time_axis: bool
+) -> None:
     dim = get_motion_model(config.motion_model).control_dim
     name = "controls" if time_axis else "control"
     check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
@@ -484,8 +487,18 @@ def _empty_slot_buffers(num_slots, means, covs, poses):
     )
 
 
-def _update_landmarks_in_order(om, r, poses, means, covs, seen, obs, valid, ids):
-    """:func:`_update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
+def update_landmarks_in_order(
+    om: ObservationModel,
+    r: jax.Array,
+    poses: jax.Array,
+    means: jax.Array,
+    covs: jax.Array,
+    seen: jax.Array,
+    obs: Any,
+    valid: jax.Array,
+    ids: jax.Array,
+) -> tuple[SlotUpdates, jax.Array, jax.Array, jax.Array]:
+    """:func:`update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
 
     The same sequential updates (:func:`_apply_slot`), slot after slot, with a fixed trip
     count: a loop whose trip count depends on the data cannot be differentiated in reverse
@@ -505,7 +518,18 @@ def _update_landmarks_in_order(om, r, poses, means, covs, seen, obs, valid, ids)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0, 9))
-def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DEFAULT_PARALLEL_SLOTS):
+def update_landmarks(
+    om: ObservationModel,
+    r: jax.Array,
+    poses: jax.Array,
+    means: jax.Array,
+    covs: jax.Array,
+    seen: jax.Array,
+    obs: Any,
+    valid: jax.Array,
+    ids: jax.Array,
+    lanes: int = DEFAULT_PARALLEL_SLOTS,
+) -> tuple[SlotUpdates, jax.Array, jax.Array, jax.Array]:
     """Initialise or EKF-update landmark ``ids[k]`` in every particle, as if slot after slot.
 
     Slots that are the first of the step to observe their landmark read it from the maps
@@ -523,7 +547,7 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     Returns the :class:`SlotUpdates` (written after resampling, :func:`_write_rows`), the new
     ``seen``, per-particle log-likelihood ``[N]`` of the updates (FastSLAM 1.0's weight) and
     the count of new landmarks. Derivatives, forward and reverse, are those of
-    :func:`_update_landmarks_in_order` (a custom JVP).
+    :func:`update_landmarks_in_order` (a custom JVP).
     """
     num_slots = ids.shape[0]
     shared = _is_shared(means, covs)
@@ -563,11 +587,11 @@ def _update_landmarks(om, r, poses, means, covs, seen, obs, valid, ids, lanes=DE
     return updates, seen, loglik, num_new
 
 
-@_update_landmarks.defjvp
+@update_landmarks.defjvp
 def _update_landmarks_jvp(om, lanes, primals, tangents):
     # The loop above has a data-dependent trip count, which reverse mode cannot transpose:
     # derivatives (forward and reverse) come from the same updates as a fixed-length scan.
-    return jax.jvp(partial(_update_landmarks_in_order, om), primals, tangents)
+    return jax.jvp(partial(update_landmarks_in_order, om), primals, tangents)
 
 
 class SlotUpdates(NamedTuple):
@@ -628,7 +652,10 @@ def _sample_gaussian(key, mean, cov):
     return x.at[2].set(weights.wrap_angle(x[2]))
 
 
-def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control, obs):
+def kernel(
+    key: jax.Array, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control: jax.Array, obs: Any
+) -> tuple[FastSLAMState, FastSLAMInfo]:
+    """One FastSLAM step, pure and traceable (:func:`step` is it validated and jitted)."""
     om = config.obs_model
     model = get_motion_model(config.motion_model)
     k_move, k_resample = jax.random.split(key)
@@ -650,28 +677,25 @@ def _step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMPar
         cov_axis = None if config.shared_covariance else 0
         poses, proposal_ll = jax.vmap(propose, in_axes=(0, 0, 0, cov_axis))(keys, state.poses, state.means, state.covs)
 
-    updates, seen, update_ll, num_new = _update_landmarks(
+    updates, seen, update_ll, num_new = update_landmarks(
         om, r, poses, state.means, state.covs, state.seen, obs, valid, ids, config.parallel_slots
     )
     loglik = update_ll if config.version == 1 else proposal_ll
     norm = weights.normalize(state.log_weights + loglik)
-    probs = jnp.exp(norm.log_weights)
-    estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
-    ess = weights.step_ess(probs, norm.degenerate)
-    res = resampling.conditional_resample(
+    res, base = finish_step(
         k_resample,
         poses,
-        norm.log_weights,
+        norm,
         threshold=config.ess_threshold,
         scheme=config.resampling,
-        normalized=True,
+        angle_dims=_POSE_ANGLE_DIMS,
     )
     # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
     # one pass over the maps, and the old maps are never copied just to be updated
     means, covs = _copy_maps(state.means, state.covs, res.ancestors, config)
     means, covs = _write_rows(means, covs, updates, res.ancestors)
     poses = res.particles
-    info = FastSLAMInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate, num_ignored, num_new)
+    info = extend_info(FastSLAMInfo, base, num_ignored=num_ignored, num_new=num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
 
 
@@ -698,30 +722,6 @@ def _copy_maps(means, covs, ancestors, config: FastSLAMConfig):
     return copied if len(copied) == 2 else (copied[0], covs)
 
 
-_step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))
-
-
-def step(key, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control, observation):
-    """One FastSLAM step (version from ``config``); validated on the host, then jitted.
-
-    ``state`` is *donated*: its buffers are reused for the new state (the
-    maps are updated in place rather than copied), so do not use the old
-    ``state`` after the call.
-    """
-    _validate_params(config, params)
-    _validate_state(config, state)
-    _validate_inputs(config, control, observation, time_axis=False)
-    return _step_jit(key, state, config, params, control, observation)
-
-
-def _run_scan(key, config: FastSLAMConfig, params: FastSLAMParams, controls, observations, state):
-    return scan_filter(_step, config, params, controls, observations, state, key, unroll=_run_unroll(config))
-
-
-_run_jit = jax.jit(_run_scan, static_argnames=("config",))
-_run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
-
-
 def _run_unroll(config: FastSLAMConfig) -> int:
     """Steps per scan iteration in :func:`run`: 2 when resampling gathers maps of at least
     :data:`UNROLL_MIN_FLOATS` per particle, else 1.
@@ -736,27 +736,26 @@ def _run_unroll(config: FastSLAMConfig) -> int:
     return 2 if not _copies_in_place(config) and config.map_floats >= UNROLL_MIN_FLOATS else 1
 
 
-def run(
-    key,
-    config: FastSLAMConfig,
-    params: FastSLAMParams,
-    controls,
-    observations,
-    initial_state: FastSLAMState,
-    donate_state: bool = False,
-):
-    """Filter a sequence in one ``lax.scan``; step ``t`` uses ``fold_in(key, t)``.
-
-    Returns ``(final_state, trace)``; ``trace.estimate`` is ``[T, 3]``. Use
-    :func:`map_estimate` on the final state for the map. With ``donate_state`` the
-    initial state's buffers are reused for the filter's state (do not use it after the
-    call); without it XLA copies the initial maps into the scan once per call.
-    """
-    _validate_params(config, params)
-    _validate_state(config, initial_state)
-    _validate_inputs(config, controls, observations, time_axis=True)
-    run_jit = _run_jit_donated if donate_state else _run_jit
-    return run_jit(key, config, params, controls, observations, initial_state)
+step, run = filter_api.build(
+    filter_api.FilterSpec(
+        name="FastSLAM",
+        kernel=kernel,
+        config_type=FastSLAMConfig,
+        time_inputs=("controls", "observations"),
+        check_params=_validate_params,
+        check_state=_validate_state,
+        check_inputs=_validate_inputs,
+        donate_step=True,
+        unroll=_run_unroll,
+        step_doc="""One FastSLAM step (version from ``config``) with ``control [control_dim]`` and one step's
+        observations (fields ``ids``, ``z``, ``mask`` with slots ``[K]``, e.g. a
+        :class:`~jaxnav.models.landmarks.RangeBearingObs`).""",
+        run_doc="""FastSLAM over a sequence: ``controls [T, control_dim]`` and observations with leading axis
+        ``T``; ``state`` from :func:`init`. ``trace.estimate`` is ``[T, 3]``; use :func:`map_estimate` on
+        the final state for the map.""",
+    ),
+    __name__,
+)
 
 
 @jax.jit

@@ -31,7 +31,7 @@ Interface: as PF-SLAM, with ``PSSLAMConfig.lag`` and ``PSSLAMParams.tag_jitter_s
 
     config = ps_slam.PSSLAMConfig(max_tags=carpet.layout.num_tags, lag=20)
     params = ps_slam.PSSLAMParams(OmniNoise(sd), hf_rfid.reader_params(0.3), tag_jitter_sd=0.015)
-    final, trace = ps_slam.run(key, config, params, odometry, detections, ps_slam.init(key0, config, params, start))
+    final, trace = ps_slam.run(key, ps_slam.init(key0, config, params, start), config, params, odometry, detections)
 """
 
 from __future__ import annotations
@@ -43,13 +43,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, ring, weights
-from jaxnav.core.batch import scan_filter
 from jaxnav.core.validation import check_nonnegative, check_positive_int, check_shape
 from jaxnav.models import hf_rfid
-from jaxnav.slam import _tag_slam
-from jaxnav.slam._tag_slam import SLAMInfo, check_capacity
-from jaxnav.slam.pf_slam import PFSLAMConfig
+from jaxnav.slam import tag_slam
+from jaxnav.slam.tag_slam import SLAMInfo, check_capacity
 
 __all__ = [
     "PSSLAMConfig",
@@ -58,6 +57,7 @@ __all__ = [
     "PSSLAMState",
     "SLAMInfo",
     "init",
+    "kernel",
     "step",
     "run",
     "map_estimate",
@@ -66,8 +66,8 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class PSSLAMConfig(PFSLAMConfig):
-    """Static configuration of PS-SLAM: the fields of :class:`~jaxnav.slam.pf_slam.PFSLAMConfig` plus ``lag``.
+class PSSLAMConfig(tag_slam.TagSLAMConfig):
+    """Static configuration of PS-SLAM: the fields of :class:`~jaxnav.slam.tag_slam.TagSLAMConfig` plus ``lag``.
 
     Attributes:
         lag: ``L``, states kept per tag particle (20–30 in [W] §4.1); ``L = 1`` smooths nothing.
@@ -165,12 +165,10 @@ def _finish(key, row: SmootherTable, particles, log_w, loglik, is_new, config, p
     buf = buf._replace(data=jnp.take(buf.data, res.ancestors, axis=1))  # histories move with their particles
     smoothed = ring.ring_mean(buf)  # [J, 2]
     estimate = weights.mean_from_probabilities(smoothed, jnp.exp(res.log_weights))
-    return SmootherTable(
-        res.particles, _tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data
-    )
+    return SmootherTable(res.particles, tag_slam.resampled_log_weights(row, res, config), estimate, count + 1, buf.data)
 
 
-TAG_MODEL = _tag_slam.TagModel(_propose, _finish)
+TAG_MODEL = tag_slam.TagModel(_propose, _finish)
 
 
 def _table_shapes(config: PSSLAMConfig) -> dict[str, tuple[int, ...]]:
@@ -185,68 +183,49 @@ def _table_shapes(config: PSSLAMConfig) -> dict[str, tuple[int, ...]]:
 
 
 def _validate_params(config: PSSLAMConfig, params: PSSLAMParams) -> None:
-    _tag_slam.validate_params(config, params, PSSLAMParams)
+    tag_slam.validate_params(config, params, PSSLAMParams)
     check_shape("params.tag_jitter_sd", params.tag_jitter_sd, ())
     check_nonnegative("params.tag_jitter_sd", params.tag_jitter_sd)
 
 
-def init(key: jax.Array, config: PSSLAMConfig, params: PSSLAMParams, initial_pose, initial_sd=None) -> PSSLAMState:
+def init(
+    key: jax.Array, config: PSSLAMConfig, params: PSSLAMParams, initial_pose: Any, initial_sd: Any = None
+) -> PSSLAMState:
     """Robot particles at ``N(initial_pose, diag(initial_sd²))`` (default: the known start) and an empty map."""
     _validate_params(config, params)
-    poses, log_w = _tag_slam.initial_particles(key, config, initial_pose, initial_sd)
+    poses, log_w = tag_slam.initial_particles(key, config, initial_pose, initial_sd)
     return PSSLAMState(poses, log_w, _empty_table(config, poses.dtype))
 
 
-def _step(key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections):
-    return _tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
-
-
-_step_jit = jax.jit(_step, static_argnames=("config",), donate_argnames=("state",))
-
-
-def _validate(config, params, state, controls, detections, time_axis):
-    _validate_params(config, params)
-    _tag_slam.validate_state(config, state, _table_shapes(config))
-    _tag_slam.validate_inputs(config, params, controls, detections, time_axis)
-
-
-def step(
-    key, state: PSSLAMState, config: PSSLAMConfig, params: PSSLAMParams, control, detections: hf_rfid.TagDetections
-):
-    """One PS-SLAM step, validated on the host, then jitted; ``state`` is donated (updated in place)."""
-    _validate(config, params, state, control, detections, time_axis=False)
-    return _step_jit(key, state, config, params, control, detections)
-
-
-def _run_scan(key, config, params, controls, detections, state):
-    return scan_filter(_step, config, params, controls, detections, state, key)
-
-
-_run_jit = jax.jit(_run_scan, static_argnames=("config",))
-_run_jit_donated = jax.jit(_run_scan, static_argnames=("config",), donate_argnames=("state",))
-
-
-def run(
-    key,
+def kernel(
+    key: jax.Array,
+    state: PSSLAMState,
     config: PSSLAMConfig,
     params: PSSLAMParams,
-    controls,
+    control: jax.Array,
     detections: hf_rfid.TagDetections,
-    initial_state: PSSLAMState,
-    donate_state: bool = False,
-):
-    """Filter a sequence in one ``lax.scan`` (step ``t`` uses ``fold_in(key, t)``); returns ``(final_state, SLAMInfo trace)``.
-
-    Args:
-        donate_state: reuse ``initial_state``'s buffers for the filter's state, which must not be
-            used after the call. Without it XLA copies the initial state (the rings: 1.7 GB at
-            100,000 tags) into the scan once per call (S2 at 100,000 tags: 4.7 → 1.7–2.8 ms per step
-            over 200 steps; the rest of the growth is not explained yet).
-    """
-    _validate(config, params, initial_state, controls, detections, time_axis=True)
-    run_jit = _run_jit_donated if donate_state else _run_jit
-    return run_jit(key, config, params, controls, detections, initial_state)
+) -> tuple[PSSLAMState, SLAMInfo]:
+    """One PS-SLAM step ([W] Alg. 2), pure and traceable (:func:`step` is it validated and jitted)."""
+    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
 
 
-map_estimate = jax.jit(_tag_slam.map_estimate)
-map_estimate.__doc__ = _tag_slam.map_estimate.__doc__
+step, run = filter_api.build(
+    tag_slam.filter_spec(
+        "PS-SLAM",
+        kernel,
+        PSSLAMConfig,
+        _validate_params,
+        _table_shapes,
+        step_doc="""One PS-SLAM step ([W] Alg. 2) with the odometry ``control [control_dim]`` and one step's
+        :class:`~jaxnav.models.hf_rfid.TagDetections` (slots ``[K]``). Returns ``(state, SLAMInfo)``.""",
+        run_doc="""PS-SLAM over a sequence: ``controls [T, control_dim]`` odometry and detections with leading
+        axis ``T``; ``state`` from :func:`init`. ``trace`` is a :class:`SLAMInfo` with leading axis ``T``.
+        ``donate_state=True`` matters for large tables: without it the initial table and its rings are
+        copied into the scan at every call.""",
+    ),
+    __name__,
+)
+
+
+map_estimate = jax.jit(tag_slam.map_estimate)
+map_estimate.__doc__ = tag_slam.map_estimate.__doc__

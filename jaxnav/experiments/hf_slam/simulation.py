@@ -15,8 +15,11 @@ Errors (:class:`Errors`, millimetres and radians as [W] prints them):
 * robot ``x``, ``y``: mean absolute error of the estimated position per axis
   over all steps; ``theta``: mean absolute heading error; ``dr``: mean
   distance between estimated and true position;
-* tag ``tx``, ``ty``, ``dt``: the same over the tags detected during the run,
-  at the end of the run.
+* tag ``tx``, ``ty``, ``dt``: the same over the tags the method mapped, at
+  the end of the run: ``tx = (1/n) Σ_mapped |t̂x − tx|`` and so on over the
+  ``n`` mapped tags. A run that mapped no tag (``n = 0``) has nothing to
+  score: its tag errors are NaN, not 0 (:mod:`jaxnav.experiments.stats`
+  counts such runs and leaves them out of the means).
 
 [W] does not define its columns; in Tables 4.1–4.2 ``dr`` exceeds
 ``√(x² + y²)``, which holds for mean absolute errors and a mean distance
@@ -32,7 +35,9 @@ at 200 mm/s, the random trajectory at 100–400 mm/s inside the carpet.
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -42,9 +47,11 @@ import numpy as np
 
 from jaxnav.core.validation import check_choice, check_positive_int
 from jaxnav.core.weights import wrap_angle
+from jaxnav.experiments import report
 from jaxnav.models import hf_rfid
 from jaxnav.models.motion import OmniNoise
 from jaxnav.sim import tag_carpet as tc
+from jaxnav.sim import trajectories
 from jaxnav.slam import fastslam, pf_slam, ps_slam
 
 __all__ = [
@@ -54,6 +61,10 @@ __all__ = [
     "World",
     "MethodRun",
     "Errors",
+    "ERROR_COLUMNS",
+    "COLUMN_HEADS",
+    "TAG_COLUMNS",
+    "NOTHING_MAPPED",
     "make_world",
     "reachable_tags",
     "run_method",
@@ -61,6 +72,8 @@ __all__ = [
     "filter_world",
     "score",
     "run_once",
+    "error_cell",
+    "dead_reckoning",
     "detection_counts",
     "format_errors",
     "plot_run",
@@ -172,7 +185,7 @@ class MethodRun(NamedTuple):
 
 
 class Errors(NamedTuple):
-    """[W]'s error columns (mm, rad); see the module docstring."""
+    """[W]'s error columns (mm, rad); see the module docstring. The tag columns are NaN when no tag was mapped."""
 
     x_mm: jax.Array
     y_mm: jax.Array
@@ -183,12 +196,22 @@ class Errors(NamedTuple):
     dt_mm: jax.Array
 
 
+ERROR_COLUMNS = Errors._fields
+"""[W]'s table columns: robot x, y, θ, distance; tag x, y, distance (mm, rad)."""
+COLUMN_HEADS = ("x [mm]", "y [mm]", "θ [rad]", "dr [mm]", "tx [mm]", "ty [mm]", "dt [mm]")
+"""The printed heads of :data:`ERROR_COLUMNS`."""
+TAG_COLUMNS = ("tx_mm", "ty_mm", "dt_mm")
+"""The columns scored over the mapped tags (NaN when the run mapped none)."""
+NOTHING_MAPPED = f"{report.NA} (nothing mapped)"
+"""How a tag error is written when no tag was mapped."""
+
+
 def _controls(key: jax.Array, s: HFSetting) -> tuple[jax.Array, jax.Array]:
     x0, y0, w, h = s.rectangle
     if s.trajectory == "rectangle":
-        return tc.rectangle_controls(w, h, s.speed, s.dt, s.laps, (x0, y0))
+        return trajectories.rectangle_controls(w, h, s.speed, s.dt, s.laps, (x0, y0))
     margin = 0.15  # keep the reader array over the carpet
-    return tc.random_controls(
+    return trajectories.random_controls(
         key, (margin, margin, s.carpet[0] - margin, s.carpet[1] - margin), s.random_steps, s.speed_range, s.dt
     )
 
@@ -287,7 +310,7 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
         state = fastslam.init(k_init, config, params, start)
         obs = hf_rfid.landmark_observations(run.detections, sensor)
         ids = jnp.asarray(slot_of)[jnp.where(obs.mask, jnp.clip(obs.ids, 0, num_tags), num_tags)]
-        final, trace = fastslam.run(k_run, config, params, run.odometry, obs._replace(ids=ids), state)
+        final, trace = fastslam.run(k_run, state, config, params, run.odometry, obs._replace(ids=ids))
         map_tags, map_seen = fastslam.map_estimate(final)
         tags = jnp.zeros((num_tags, 2), map_tags.dtype).at[reach].set(map_tags)
         seen = jnp.zeros((num_tags,), bool).at[reach].set(map_seen)
@@ -307,7 +330,7 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
         params = ps_slam.PSSLAMParams(setting.motion(), sensor, jitter)
     module.check_capacity(config, num_tags)
     state = module.init(k_init, config, params, start)
-    final, trace = module.run(k_run, config, params, run.odometry, run.detections, state)
+    final, trace = module.run(k_run, state, config, params, run.odometry, run.detections)
     tags, seen = module.map_estimate(final)
     return MethodRun(trace.estimate, tags, seen, trace.lost), trace
 
@@ -326,23 +349,28 @@ def detection_counts(run: tc.HFRun, num_tags: int) -> jax.Array:
 
 
 def score(world: World, result: MethodRun) -> Errors:
-    """[W]'s errors of one run (module docstring), in mm and rad."""
+    """[W]'s errors of one run (module docstring), in mm and rad; the tag errors are NaN when no tag was mapped."""
     truth = world.run.true_poses
     e = result.estimates[:, :2] - truth[:, :2]
     dtheta = jnp.abs(wrap_angle(result.estimates[:, 2] - truth[:, 2]))
     true_tags = tc.tag_positions(world.carpet)
     seen = result.seen
-    n = jnp.maximum(jnp.sum(seen), 1)
+    count = jnp.sum(seen)
+    n = jnp.maximum(count, 1)
     et = jnp.where(seen[:, None], result.tags - true_tags, 0.0)
     mm = 1000.0
+
+    def over_mapped(total):  # mean over the mapped tags; NaN when none was mapped (nothing to score)
+        return jnp.where(count > 0, mm * total / n, jnp.nan)
+
     return Errors(
         x_mm=mm * jnp.mean(jnp.abs(e[:, 0])),
         y_mm=mm * jnp.mean(jnp.abs(e[:, 1])),
         theta_rad=jnp.mean(dtheta),
         dr_mm=mm * jnp.mean(jnp.linalg.norm(e, axis=1)),
-        tx_mm=mm * jnp.sum(jnp.abs(et[:, 0])) / n,
-        ty_mm=mm * jnp.sum(jnp.abs(et[:, 1])) / n,
-        dt_mm=mm * jnp.sum(jnp.linalg.norm(et, axis=1)) / n,
+        tx_mm=over_mapped(jnp.sum(jnp.abs(et[:, 0]))),
+        ty_mm=over_mapped(jnp.sum(jnp.abs(et[:, 1]))),
+        dt_mm=over_mapped(jnp.sum(jnp.linalg.norm(et, axis=1))),
     )
 
 
@@ -354,21 +382,40 @@ def run_once(key: jax.Array, method: str, setting: HFSetting) -> tuple[Errors, W
     return score(world, result), world, result
 
 
+@functools.lru_cache(maxsize=256)
+def error_cell(method: str, setting: HFSetting) -> Callable[[jax.Array], Errors]:
+    """``key -> Errors`` of one seeded run of ``method`` on ``setting`` (a sweep cell's function).
+
+    Cached: experiments sharing a (method, setting) cell get the same function, so
+    they share its compilation (:func:`jaxnav.core.batch.compiled_vmap`).
+    """
+
+    def fn(key):
+        return run_once(key, method, setting)[0]
+
+    return fn
+
+
 def dead_reckoning(run: tc.HFRun) -> jax.Array:
     """``[T, 3]`` odometry integrated from the start pose ([W] eq. 3.6 without noise)."""
-    return tc.integrate_controls(run.start_pose, run.odometry, "omni")
+    return trajectories.integrate_controls(run.start_pose, run.odometry, "omni")
 
 
 def format_errors(rows: list[tuple[str, Any]]) -> str:
-    """A table like [W]'s: one row per ``(label, Errors)``."""
-    head = f"{'method':<16}{'x [mm]':>9}{'y [mm]':>9}{'θ [rad]':>9}{'dr [mm]':>9}{'tx [mm]':>9}{'ty [mm]':>9}{'dt [mm]':>9}"
-    lines = [head, "-" * len(head)]
+    """A table like [W]'s: one row per ``(label, Errors)`` (a tag error with no tag mapped: :data:`NOTHING_MAPPED`)."""
+    columns = [report.Column("method", 16, "<")] + [report.Column(h, 9) for h in COLUMN_HEADS]
+    cells = []
     for label, e in rows:
-        vals = [float(v) for v in e]
-        lines.append(
-            f"{label:<16}{vals[0]:>9.1f}{vals[1]:>9.1f}{vals[2]:>9.3f}{vals[3]:>9.1f}{vals[4]:>9.1f}{vals[5]:>9.1f}{vals[6]:>9.1f}"
+        cells.append(
+            [label]
+            + [
+                report.number(
+                    float(v), 3 if c == "theta_rad" else 1, nan=NOTHING_MAPPED if c in TAG_COLUMNS else report.NA
+                )
+                for c, v in zip(ERROR_COLUMNS, e)
+            ]
         )
-    return "\n".join(lines)
+    return report.text(columns, cells)
 
 
 def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:

@@ -63,6 +63,7 @@ Choices where [W] is silent (stated here, tested):
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, NamedTuple
 
@@ -70,7 +71,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -86,7 +89,9 @@ from jaxnav.models.motion import validate_noise as validate_motion_noise
 _POSE_ANGLE_DIMS = (2,)
 
 
-class SLAMInfo(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class SLAMInfo(PFInfo):
     """Per-step diagnostics of PF-SLAM and PS-SLAM.
 
     Attributes:
@@ -104,11 +109,6 @@ class SLAMInfo(NamedTuple):
         slot_counts: ``[K]`` the slot's tag detection count after the step.
     """
 
-    estimate: jax.Array
-    ess: jax.Array
-    resampled: jax.Array
-    log_likelihood: jax.Array
-    degenerate: jax.Array
     lost: jax.Array
     num_ignored: jax.Array
     num_new: jax.Array
@@ -119,7 +119,52 @@ class SLAMInfo(NamedTuple):
 
 
 # ---------------------------------------------------------------------------
-# validation shared by both filters
+# configuration and validation shared by both filters
+
+
+@dataclass(frozen=True)
+class TagSLAMConfig:
+    """Static configuration shared by PF-SLAM and PS-SLAM (hashable; a static argument of ``jit``).
+
+    Attributes:
+        num_particles: ``I``, robot particles (500 in [W]).
+        num_tag_particles: ``J``, particles per tag (100 in [W]).
+        max_tags: tag-table capacity; tag IDs ``≥ max_tags`` are dropped and counted.
+        motion_model: name in :data:`jaxnav.models.motion.MODELS`; "omni" is [W] eq. 3.6.
+        resampling: scheme for robot and tag particles (:data:`jaxnav.core.resampling.SCHEMES`).
+        ess_threshold: robot resampling when ESS < ``ess_threshold · I``; 1.0 = every step ([W] Alg. 1).
+        tag_ess_threshold: the same for a tag's particles at each detection; 1.0 = always ([W] Alg. 1).
+        recovery: redraw the robot particles when it is lost (kidnapping, [W] §3.4.3; module docstring).
+        recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
+        recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
+            been turned); a number: each keeps its own heading with a uniform error of this standard deviation (rad).
+        parallel_slots: ``None`` (default): a step processes all ``K`` detection slots. A number
+            ``L < K``: a step moves the valid slots to the front and processes the first ``L``,
+            and all ``K`` only when more than ``L`` are valid, at the cost of ``L`` slots. The
+            results are those of all slots up to float rounding: sums over the slots run in
+            another order, and a particle filter can amplify a last-bit difference in a single
+            run (in distribution nothing changes). Derivatives are those of the all-slot step.
+            Worth it when the capacity ``K`` is much larger than what a step sees: at 100 tags/m²
+            with 60 mm readers ``K = 24`` for about 3 detections. Under ``vmap`` a step where one
+            run of the batch has more than ``L`` valid slots costs all ``K`` for the batch: choose
+            ``L`` above what a step rarely exceeds (e.g. ``⌈λ + 3√λ⌉`` for ``λ`` expected
+            detections per step).
+    """
+
+    num_particles: int = 500
+    num_tag_particles: int = 100
+    max_tags: int = 1024
+    motion_model: str = "omni"
+    resampling: str = "systematic"
+    ess_threshold: float = 1.0
+    tag_ess_threshold: float = 1.0
+    recovery: bool = True
+    recovery_log_likelihood: float = -8.0
+    recovery_heading_sd: float | None = None
+    parallel_slots: int | None = None
+
+    def __post_init__(self) -> None:
+        validate_common_config(self)
 
 
 def validate_common_config(config: Any) -> None:
@@ -151,26 +196,16 @@ def check_capacity(config: Any, num_tags: int) -> None:
         )
 
 
-_LAST_VALID_PARAMS: list = []
-"""``[params, motion_model]`` of the last parameters that passed :func:`validate_params`, kept
-alive so that their ``id`` cannot be reused: an online loop passes the same object at every step."""
-
-
 def validate_params(config: Any, params: Any, params_type: type) -> None:
-    last = _LAST_VALID_PARAMS[:]
-    if last and last[0] is params and last[1] == config.motion_model:
-        return  # the same immutable object already passed (its leaves are jax arrays, see below)
+    """Host-side checks of a tag-SLAM filter's ``params``: its type, the motion noise and the reader model."""
     if not isinstance(params, params_type):
         raise ValueError(f"params must be a {params_type.__name__}, got {type(params).__name__}")
     validate_motion_noise(config.motion_model, params.motion)
     hf_rfid.validate_params(params.sensor)
-    leaves = jax.tree_util.tree_leaves(params)
-    if all(isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer) for x in leaves):
-        # jax arrays cannot change in place (NumPy arrays could: those are checked at every call)
-        _LAST_VALID_PARAMS[:] = [params, config.motion_model]
 
 
 def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, ...]]) -> None:
+    """Shapes of the robot particles and of every field of the tag table (``table_shapes``)."""
     check_shape("state.poses", state.poses, (config.num_particles, 3))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
     for field, shape in table_shapes.items():
@@ -178,6 +213,7 @@ def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, .
 
 
 def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, time_axis: bool) -> None:
+    """Odometry of the configured motion model and :class:`~jaxnav.models.hf_rfid.TagDetections` of as many steps."""
     dim = get_motion_model(config.motion_model).control_dim
     name = "controls" if time_axis else "control"
     check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
@@ -281,7 +317,15 @@ class StepResult(NamedTuple):
     info: SLAMInfo
 
 
-def slam_step(key, state, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel):
+def slam_step(
+    key: jax.Array,
+    state: Any,
+    config: Any,
+    params: Any,
+    control: jax.Array,
+    det: hf_rfid.TagDetections,
+    tag_model: TagModel,
+) -> tuple[Any, SLAMInfo]:
     """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
 
     With ``config.parallel_slots = L`` smaller than the ``K`` detection slots, the valid slots
@@ -316,7 +360,7 @@ def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) 
     def put(fill, v):
         return jnp.full((num_slots,) + v.shape[1:], fill, v.dtype).at[order].set(v)
 
-    info = res.info._replace(
+    info = res.info.replace(
         num_ignored=num_ignored,
         slot_ids=put(-1, res.info.slot_ids),
         slot_estimates=put(0, res.info.slot_estimates),
@@ -422,20 +466,14 @@ def _slot_result(
     prior_lw = jnp.where(lost, uniform, state_log_weights)
     loglik = _robot_log_likelihood(poses, estimates, offsets, known, sensor)
     norm = weights.normalize(prior_lw + loglik)
-    probs = jnp.exp(norm.log_weights)
-    estimate = weights.mean_from_probabilities(poses, probs, _POSE_ANGLE_DIMS)
-    ess = weights.step_ess(probs, norm.degenerate)
-    res = resampling.conditional_resample(
-        k_resample, poses, norm.log_weights, threshold=config.ess_threshold, scheme=config.resampling, normalized=True
+    res, base = finish_step(
+        k_resample, poses, norm, threshold=config.ess_threshold, scheme=config.resampling, angle_dims=_POSE_ANGLE_DIMS
     )
 
     counts_after = jnp.where(lost, rows.counts, new_rows.counts)
-    info = SLAMInfo(
-        estimate=estimate,
-        ess=ess,
-        resampled=res.resampled,
-        log_likelihood=norm.log_norm,
-        degenerate=norm.degenerate,
+    info = extend_info(
+        SLAMInfo,
+        base,
         lost=lost,
         num_ignored=num_ignored,
         num_new=jnp.sum(leader & is_new & ~lost).astype(jnp.int32),
@@ -447,16 +485,43 @@ def _slot_result(
     return StepResult(write_ids, new_rows, res.particles, res.log_weights, info)
 
 
-def resampled_log_weights(row, res: resampling.ResampleResult, config) -> jax.Array:
+def resampled_log_weights(row: Any, res: resampling.ResampleResult, config: Any) -> jax.Array:
     """A tag's log-weights after its update. With resampling at every detection
     (``tag_ess_threshold = 1``) they are uniform before and after, and the gathered
     row is returned so that the write-back stays in place (module docstring)."""
     return row.log_weights if config.tag_ess_threshold >= 1.0 else res.log_weights
 
 
-def map_estimate(state) -> tuple[jax.Array, jax.Array]:
+def map_estimate(state: Any) -> tuple[jax.Array, jax.Array]:
     """``(estimates [max_tags, 2], seen [max_tags])``: every tag's current estimate (m) and whether it was detected.
 
     Reads the whole table, so it is a read-out for after (or between) steps, not part of one.
     """
     return state.tags.estimates, state.tags.counts > 0
+
+
+def filter_spec(
+    name: str,
+    kernel: Callable[..., Any],
+    config_type: type,
+    check_params: Callable[[Any, Any], None],
+    table_shapes: Callable[[Any], dict[str, tuple[int, ...]]],
+    step_doc: str,
+    run_doc: str,
+) -> filter_api.FilterSpec:
+    """The :class:`~jaxnav.core.filter.FilterSpec` of a tag-SLAM filter: odometry and
+    :class:`~jaxnav.models.hf_rfid.TagDetections` in, the state donated to ``step`` (the tag table
+    is updated in place)."""
+    return filter_api.FilterSpec(
+        name=name,
+        kernel=kernel,
+        config_type=config_type,
+        inputs=("control", "detections"),
+        time_inputs=("controls", "detections"),
+        check_params=check_params,
+        check_state=lambda config, params, state: validate_state(config, state, table_shapes(config)),
+        check_inputs=validate_inputs,
+        donate_step=True,
+        step_doc=step_doc,
+        run_doc=run_doc,
+    )

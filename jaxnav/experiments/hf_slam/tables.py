@@ -1,12 +1,15 @@
-"""[W]'s error tables (3.1, 3.2, 4.1, 4.2) as registered experiments.
+"""[W]'s HF-RFID SLAM error tables (3.1, 3.2, 4.1, 4.2) as experiments.
 
 Each table row is a method on a setting; a row's value in a column is the
 mean over the row's runs with its 95 % interval, printed beside [W]'s single
-run. The per-run errors are those of :func:`jaxnav.experiments.hf_slam.score`
+run. The per-run errors are those of :func:`jaxnav.experiments.hf_slam.simulation.score`
 (robot x, y, θ, distance over all steps; tag x, y, distance at the end, mm
-and rad). Settings and noise levels are listed in
-:mod:`jaxnav.experiments.hf_slam`; the quick variants shorten the trajectory
-and cut the particles so that the test suite runs them in seconds.
+and rad). A run that mapped no tag has no tag errors (NaN): it is left out
+of the tag columns' means and counted in their ``unscored_runs``, and a
+column no run could score reads "n/a (nothing mapped)". Settings and noise
+levels are listed in :mod:`jaxnav.experiments.hf_slam.simulation`; the quick
+variants shorten the trajectory and cut the particles so that the test suite
+runs them in seconds. The four tables are :data:`EXPERIMENTS`.
 """
 
 from __future__ import annotations
@@ -16,13 +19,24 @@ from dataclasses import replace
 
 import numpy as np
 
-from jaxnav.experiments import hf_slam as hf
+from jaxnav.experiments import report, stats
 from jaxnav.experiments import sweep as sw
-from jaxnav.experiments.registry import ERROR_COLUMNS, Cell, Experiment, register, summarize_column
+from jaxnav.experiments.experiment import Cell, Experiment
+from jaxnav.experiments.hf_slam import simulation as hf
+from jaxnav.experiments.hf_slam.simulation import COLUMN_HEADS, ERROR_COLUMNS, NOTHING_MAPPED, TAG_COLUMNS
 
-__all__ = ["TableRow", "table_experiment", "QUICK", "quick_setting", "setting_label", "FIVE_RECTANGLES"]
+__all__ = [
+    "TableRow",
+    "table_experiment",
+    "summarize_column",
+    "QUICK",
+    "quick_setting",
+    "setting_label",
+    "FIVE_RECTANGLES",
+    "METHOD_LABELS",
+    "EXPERIMENTS",
+]
 
-COLUMN_HEADS = ("x [mm]", "y [mm]", "θ [rad]", "dr [mm]", "tx [mm]", "ty [mm]", "dt [mm]")
 METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
 
 QUICK = dict(robot_particles=100, tag_particles=30, laps=1, random_steps=300)
@@ -65,8 +79,18 @@ def quick_setting(s: hf.HFSetting) -> hf.HFSetting:
     )
 
 
+def summarize_column(values: np.ndarray, paper: float | None) -> dict:
+    """``{"mean", "ci95": [lo, hi], "paper"}`` of one column's per-run values (and ``"unscored_runs"``
+    when some runs have no value: :func:`jaxnav.experiments.stats.column_summary`)."""
+    s = stats.column_summary(values)
+    out = {"mean": s["mean"], "ci95": s["ci95"], "paper": paper}
+    if "unscored_runs" in s:
+        out["unscored_runs"] = s["unscored_runs"]
+    return out
+
+
 def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str = "") -> Experiment:
-    """Build and register a table experiment from its rows."""
+    """A table experiment from its rows."""
 
     def cells(quick: bool) -> list[Cell]:
         out = []
@@ -74,7 +98,8 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
             # the quick variant runs a pooled row's first setting only
             for i, s in enumerate(row.settings[:1] if quick else row.settings):
                 s = quick_setting(s) if quick else s
-                out.append(Cell(f"{row.label}|{row.method}|{i}", row.label, row.method, s))
+                cell_id = f"{row.label}|{row.method}|{i}"
+                out.append(Cell(cell_id, row.label, row.method, s, hf.error_cell(row.method, s)))
         return out
 
     def summarize(raw: dict, cell_list: list[Cell], quick: bool) -> dict:
@@ -93,71 +118,65 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
-    return register(
-        Experiment(
-            name,
-            title,
-            cells,
-            summarize,
-            render_table,
-            markdown_table,
-            plot_table,
-            notes,
-            compiler_options=sw.LIGHT_COMPILE,
-        )
+    return Experiment(
+        name,
+        title,
+        cells,
+        summarize,
+        render_table,
+        markdown_table,
+        plot_table,
+        notes,
+        compiler_options=sw.LIGHT_COMPILE,
     )
 
 
-def _fmt(col: str, v: float | None) -> str:
-    if v is None or not np.isfinite(v):
-        return "–"
-    return f"{v:.3f}" if col == "theta_rad" else f"{v:.1f}"
+def _digits(col: str) -> int:
+    return 3 if col == "theta_rad" else 1
+
+
+def _nan(col: str) -> str:
+    return NOTHING_MAPPED if col in TAG_COLUMNS else report.NA
+
+
+def _setting_text(s: dict, short: bool) -> str:
+    if short:
+        return f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
+    return f"{s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']}"
 
 
 def render_table(result: dict) -> str:
     """Terminal table: per row, ours (mean ± half-interval) and [W]'s value."""
-    lines = [
+    title = [
         f"{result['experiment']}: {result['title']}  ({result['runs']} runs per setting"
         f"{', quick variant' if result.get('quick') else ''}; ours = mean ± 95 % half-interval, [W] = thesis)"
     ]
-    head = f"{'setting':<22}{'method':<10}{'':<5}" + "".join(f"{h:>16}" for h in COLUMN_HEADS)
-    lines += [head, "-" * len(head)]
+    columns = [report.Column("setting", 22, "<"), report.Column("method", 10, "<"), report.Column("", 5, "<")]
+    columns += [report.Column(h, 16) for h in COLUMN_HEADS]
+    rows = []
     for r in result["rows"]:
-        s = r["setting"]
-        label = f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
-        ours = "".join(
-            f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>16}"
-            for c in ERROR_COLUMNS
-        )
-        paper = "".join(f"{_fmt(c, r[c]['paper']):>16}" for c in ERROR_COLUMNS)
-        lines.append(f"{label:<22}{METHOD_LABELS[r['method']]:<10}{'ours':<5}{ours}")
-        lines.append(f"{'':<22}{'':<10}{'[W]':<5}{paper}")
-    return "\n".join(lines)
+        ours = [report.plus_minus(r[c], _digits(c), _nan(c)) for c in ERROR_COLUMNS]
+        paper = [report.number(r[c]["paper"], _digits(c)) for c in ERROR_COLUMNS]
+        rows.append([_setting_text(r["setting"], True), METHOD_LABELS[r["method"]], "ours", *ours])
+        rows.append(["", "", "[W]", *paper])
+    return report.text(columns, rows, title)
 
 
 def markdown_table(result: dict) -> str:
     """Markdown table: ``ours [lo, hi] ([W] value)`` per column."""
-    head = "| setting | method | " + " | ".join(COLUMN_HEADS) + " |"
-    lines = [
+    title = (
         f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per setting; "
-        "mean [95 % interval] (thesis value))",
-        "",
-        head,
-        "|" + " --- |" * (2 + len(COLUMN_HEADS)),
-    ]
+        "mean [95 % interval] (thesis value))"
+    )
+    rows = []
     for r in result["rows"]:
-        s = r["setting"]
-        cells = []
-        for c in ERROR_COLUMNS:
-            v = r[c]
-            cells.append(
-                f"{_fmt(c, v['mean'])} [{_fmt(c, v['ci95'][0])}, {_fmt(c, v['ci95'][1])}] ({_fmt(c, v['paper'])})"
-            )
-        lines.append(
-            f"| {s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']} | "
-            f"{METHOD_LABELS[r['method']]} | " + " | ".join(cells) + " |"
-        )
-    return "\n".join(lines)
+        cells = [
+            f"{report.interval(r[c], _digits(c), _nan(c), note=False)} ({report.number(r[c]['paper'], _digits(c))})"
+            + (f"; {note}" if (note := report.unscored_note(r[c])) else "")
+            for c in ERROR_COLUMNS
+        ]
+        rows.append([_setting_text(r["setting"], False), METHOD_LABELS[r["method"]], *cells])
+    return report.markdown(["setting", "method", *COLUMN_HEADS], rows, title)
 
 
 def plot_table(result: dict, path: str) -> None:
@@ -176,6 +195,8 @@ def plot_table(result: dict, path: str) -> None:
         hi = np.array([r[col]["ci95"][1] for r in rows])
         ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours ({result['runs']} runs, 95 % CI)")
         ax.errorbar(x, means, yerr=[means - lo, hi - means], fmt="none", color="k", capsize=3)
+        for i in np.flatnonzero(~np.isfinite(means)):  # no run had anything to score
+            ax.annotate(_nan(col), (x[i], 0), ha="center", va="bottom", rotation=90, fontsize=7)
         paper = [r[col]["paper"] for r in rows]
         px = [i for i, p in enumerate(paper) if p is not None]
         ax.plot(px, [paper[i] for i in px], "r_", ms=22, mew=3, label="[W] (single run)")
@@ -200,7 +221,7 @@ _S41 = tuple(
 )
 _S42 = hf.HFSetting(density=4.0, reader_side=0.3, trajectory="random", carpet=(4.0, 3.5))
 
-table_experiment(
+TABLE_3_1 = table_experiment(
     "table-3.1",
     "FastSLAM vs PF-SLAM, 60 mm readers, rectangle driven three times ([W] Table 3.1)",
     [
@@ -210,7 +231,7 @@ table_experiment(
         TableRow("100", "pf_slam", [_S31[100.0]], (23.2, 23.9, 0.011, 33.3, 25.7, 24.1, 35.2)),
     ],
 )
-table_experiment(
+TABLE_3_2 = table_experiment(
     "table-3.2",
     "FastSLAM vs PF-SLAM, 60 mm readers, random trajectory ([W] Table 3.2)",
     [
@@ -220,7 +241,7 @@ table_experiment(
         TableRow("100", "pf_slam", [_S32[100.0]], (20.3, 37.1, 0.003, 42.3, 13.6, 23.4, 27.1)),
     ],
 )
-table_experiment(
+TABLE_4_1 = table_experiment(
     "table-4.1",
     "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², five rectangles ([W] Table 4.1)",
     [
@@ -230,7 +251,7 @@ table_experiment(
     ],
     notes="Each row pools the runs of the five rectangles.",
 )
-table_experiment(
+TABLE_4_2 = table_experiment(
     "table-4.2",
     "PS vs PF vs FastSLAM, 300 mm readers, 4 tags/m², random trajectory ([W] Table 4.2)",
     [
@@ -241,3 +262,6 @@ table_experiment(
         TableRow("4", "fastslam", [_S42], (110.4, 198.6, 0.131, 245.7, 122.5, 234.1, 280.0)),
     ],
 )
+
+EXPERIMENTS = (TABLE_3_1, TABLE_3_2, TABLE_4_1, TABLE_4_2)
+"""The four tables, in [W]'s order (listed by :mod:`jaxnav.experiments.catalog`)."""

@@ -1,8 +1,12 @@
-"""[W]'s figures with a curve to reproduce: Fig. 3.5, Fig. 3.7, Fig. 4.4 and the kidnapping of Fig. 3.12.
+"""[W]'s HF-RFID SLAM figures with a curve to reproduce: Figs. 3.5, 3.7, 4.4 and the kidnapping of Fig. 3.12.
 
-Each is a registered experiment (:mod:`jaxnav.experiments.registry`). A curve
-is a list of points, each the mean over ``R`` seeded runs with its 95 %
-interval. [W] prints these figures as images only, so the result carries no
+Each is an experiment (:data:`EXPERIMENTS`, run by name with
+:func:`jaxnav.experiments.registry.run`). A curve is a list of points, each
+the mean over ``R`` seeded runs with its 95 % interval
+(:func:`jaxnav.experiments.stats.mean_ci`); a run with nothing to score at a
+point (no tag mapped, no tag detected that often) is NaN there, left out of
+the point's mean and counted in the curve's ``unscored_runs`` (present only
+when some point has such runs). [W] prints these figures as images only, so the result carries no
 thesis numbers; the claim each figure supports is in ``notes`` and is what
 the tests check:
 
@@ -28,13 +32,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.experiments import hf_slam as hf
+from jaxnav.experiments import report, stats
 from jaxnav.experiments import sweep as sw
-from jaxnav.experiments.registry import Cell, Experiment, register
-from jaxnav.experiments.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, quick_setting
+from jaxnav.experiments.experiment import Cell, Experiment
+from jaxnav.experiments.hf_slam import simulation as hf
+from jaxnav.experiments.hf_slam.simulation import NOTHING_MAPPED
+from jaxnav.experiments.hf_slam.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, quick_setting
 from jaxnav.sim import tag_carpet as tc
 
-__all__ = ["curve_experiment", "DETECTION_BINS", "PARTICLES", "READER_SIDES"]
+__all__ = ["curve_experiment", "DETECTION_BINS", "PARTICLES", "READER_SIDES", "EXPERIMENTS"]
 
 DETECTION_BINS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
 """Fig. 3.5: the n-th detection of a tag, grouped in bins ``[b_k, b_{k+1})``."""
@@ -45,28 +51,51 @@ READER_SIDES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
 
 
 def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray]) -> dict:
-    """``{"x", "mean", "ci95"}`` of one curve from per-point arrays of per-run values (NaN = no value)."""
-    means, cis = [], []
+    """``{"x", "mean", "ci95"}`` of one curve from per-point arrays of per-run values (NaN = no value),
+    with ``"unscored_runs"`` per point when a point has runs without a value."""
+    means, cis, unscored = [], [], []
     for values in per_run:
-        m, lo, hi = sw.mean_ci(values)
-        means.append(m)
-        cis.append([lo, hi])
-    return {"x": list(map(float, x)), "mean": means, "ci95": cis}
+        s = stats.summarize(values)
+        means.append(s.mean)
+        cis.append([s.lo, s.hi])
+        unscored.append(s.unscored)
+    out = {"x": list(map(float, x)), "mean": means, "ci95": cis}
+    if any(unscored):
+        out["unscored_runs"] = unscored
+    return out
+
+
+_NAN_TEXT = {
+    "tag error dt (mm)": NOTHING_MAPPED,
+    "tag error after the n-th detection (mm)": f"{report.NA} (no tag detected n times)",
+}
+"""How a curve point no run could score is written, per quantity (default :data:`jaxnav.experiments.report.NA`)."""
+
+
+def _points(c: dict) -> list[dict]:
+    """The curve's points as ``{"mean", "ci95"[, "unscored_runs"]}`` summaries (for :mod:`jaxnav.experiments.report`)."""
+    unscored = c.get("unscored_runs", [0] * len(c["mean"]))
+    return [{"mean": m, "ci95": ci, "unscored_runs": k} for m, ci, k in zip(c["mean"], c["ci95"], unscored)]
 
 
 def render_curves(result: dict) -> str:
+    """Terminal: per curve, its points as ``x = value: mean [lo, hi]`` (long curves thinned)."""
     lines = [
         f"{result['experiment']}: {result['title']}  ({result['runs']} runs per point"
         f"{', quick variant' if result.get('quick') else ''}; mean [95 % interval])"
     ]
     for c in result["curves"]:
         lines.append(f"  {METHOD_LABELS.get(c['method'], c['method'])}, {c['quantity']}:")
+        nan = _NAN_TEXT.get(c["quantity"], report.NA)
         every = max(1, len(c["x"]) // 12)  # long curves (the kidnapping) are printed thinned; the JSON has them all
-        for x, m, (lo, hi) in list(zip(c["x"], c["mean"], c["ci95"]))[::every]:
-            lines.append(f"    {result['x_label']} = {x:g}: {m:8.1f} [{lo:.1f}, {hi:.1f}]")
+        for x, p in list(zip(c["x"], _points(c)))[::every]:
+            value = report.interval(p, 1, nan)
+            pad = " " * max(0, 8 - len(value.split(" ", 1)[0]))  # the mean right-aligned in 8 characters
+            lines.append(f"    {result['x_label']} = {x:g}: {pad}{value}")
         if "before_mm" in c:
             lines.append(
-                f"    mean error over the 5 s before: {c['before_mm']:.1f} mm, over 5–15 s after: {c['after_mm']:.1f} mm"
+                f"    mean error over the 5 s before: {report.number(c['before_mm'], 1)} mm, "
+                f"over 5–15 s after: {report.number(c['after_mm'], 1)} mm"
             )
     if result.get("notes"):
         lines.append(result["notes"])
@@ -74,18 +103,15 @@ def render_curves(result: dict) -> str:
 
 
 def markdown_curves(result: dict) -> str:
+    """Markdown: one line per curve, one column per point."""
     xs = result["curves"][0]["x"]
-    head = "| method | quantity | " + " | ".join(f"{result['x_label']} = {x:g}" for x in xs) + " |"
-    lines = [
-        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])",
-        "",
-        head,
-        "|" + " --- |" * (2 + len(xs)),
-    ]
+    title = f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])"
+    rows = []
     for c in result["curves"]:
-        cells = [f"{m:.1f} [{lo:.1f}, {hi:.1f}]" for m, (lo, hi) in zip(c["mean"], c["ci95"])]
-        lines.append(f"| {METHOD_LABELS.get(c['method'], c['method'])} | {c['quantity']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        nan = _NAN_TEXT.get(c["quantity"], report.NA)
+        cells = [report.interval(p, 1, nan) for p in _points(c)]
+        rows.append([METHOD_LABELS.get(c["method"], c["method"]), c["quantity"], *cells])
+    return report.markdown(["method", "quantity", *(f"{result['x_label']} = {x:g}" for x in xs)], rows, title)
 
 
 def plot_curves(result: dict, path: str) -> None:
@@ -114,23 +140,21 @@ def plot_curves(result: dict, path: str) -> None:
 
 
 def curve_experiment(name, title, x_label, cells, summarize, notes="", x_log=False) -> Experiment:
-    """Build and register a figure experiment."""
+    """A figure experiment: ``summarize(raw, cells, quick)`` gives its curves."""
 
     def summarize_all(raw, cell_list, quick):
         return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}
 
-    return register(
-        Experiment(
-            name,
-            title,
-            cells,
-            summarize_all,
-            render_curves,
-            markdown_curves,
-            plot_curves,
-            notes,
-            compiler_options=sw.LIGHT_COMPILE,
-        )
+    return Experiment(
+        name,
+        title,
+        cells,
+        summarize_all,
+        render_curves,
+        markdown_curves,
+        plot_curves,
+        notes,
+        compiler_options=sw.LIGHT_COMPILE,
     )
 
 
@@ -180,7 +204,7 @@ def _fig35_summary(raw, cells, quick):
     return [{"method": "pf_slam", "quantity": "tag error after the n-th detection (mm)", **curve}]
 
 
-curve_experiment(
+FIG_3_5 = curve_experiment(
     "fig-3.5",
     "PF-SLAM tag error against the number of detections ([W] Fig. 3.5)",
     "detections n",
@@ -202,7 +226,7 @@ def _fig37_cells(quick):
     for method in ("pf_slam", "fastslam"):
         for n in counts:
             s = replace(quick_setting(base) if quick else base, robot_particles=n)
-            out.append(Cell(f"{method}|{n}", str(n), method, s))
+            out.append(Cell(f"{method}|{n}", str(n), method, s, hf.error_cell(method, s)))
     return out
 
 
@@ -216,7 +240,7 @@ def _fig37_summary(raw, cells, quick):
     return curves
 
 
-curve_experiment(
+FIG_3_7 = curve_experiment(
     "fig-3.7",
     "Errors against robot particles, PF-SLAM vs FastSLAM, 16 tags/m² rectangle ([W] Fig. 3.7)",
     "robot particles",
@@ -241,7 +265,8 @@ def _fig44_cells(quick):
                 s = hf.HFSetting(
                     density=4.0, reader_side=side, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=rect
                 )
-                out.append(Cell(f"{method}|{side:g}|{i}", f"{side:g}", method, quick_setting(s) if quick else s))
+                s = quick_setting(s) if quick else s
+                out.append(Cell(f"{method}|{side:g}|{i}", f"{side:g}", method, s, hf.error_cell(method, s)))
     return out
 
 
@@ -258,7 +283,7 @@ def _fig44_summary(raw, cells, quick):
     return curves
 
 
-curve_experiment(
+FIG_4_4 = curve_experiment(
     "fig-4.4",
     "Errors against the reader footprint, 4 tags/m², one rectangle ([W] Fig. 4.4)",
     "reader side (mm)",
@@ -311,14 +336,14 @@ def _kidnap_summary(raw, cells, quick):
                 "method": c.method,
                 "quantity": "robot error (mm)",
                 **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window]),
-                "before_mm": sw.mean_ci(err[:, max(0, k - 50) : k].mean(axis=1))[0],
-                "after_mm": sw.mean_ci(err[:, k + 50 : k + 150].mean(axis=1))[0],
+                "before_mm": stats.mean_ci(err[:, max(0, k - 50) : k].mean(axis=1))[0],
+                "after_mm": stats.mean_ci(err[:, k + 50 : k + 150].mean(axis=1))[0],
             }
         )
     return curves
 
 
-curve_experiment(
+KIDNAPPING = curve_experiment(
     "kidnapping",
     "Robot error around a kidnapping, 16 tags/m², 60 mm readers ([W] §3.4.3, Fig. 3.12)",
     "time since the kidnapping (s)",
@@ -326,3 +351,6 @@ curve_experiment(
     _kidnap_summary,
     notes="[W]: the error jumps when the robot is kidnapped and returns to its level before within a short time.",
 )
+
+EXPERIMENTS = (FIG_3_5, FIG_3_7, FIG_4_4, KIDNAPPING)
+"""The four figures (listed by :mod:`jaxnav.experiments.catalog`)."""

@@ -9,7 +9,10 @@ against the Vicon ground truth (:mod:`jaxnav.metrics`):
   and the ATE (position RMSE after a rigid alignment of the whole path);
 * map (SLAM only): landmark RMSE in the world frame — the frame is fixed by
   the known initial pose, the convention of the dataset's notes — and after a
-  rigid alignment (the map's shape alone).
+  rigid alignment (the map's shape alone), over the landmarks the filter
+  mapped: ``√((1/n) Σ_mapped ‖m̂ − m‖²)``. A run that mapped no landmark has
+  nothing to score: its map errors are NaN (printed "n/a (nothing mapped)"),
+  not 0.
 
 Settings (:class:`MRCLAMSettings`) were chosen on the first 300 s of robot 1
 and used unchanged for robots 2 and 3: the odometry's heading drifts fast
@@ -22,8 +25,8 @@ kept with out-of-map ids: every filter ignores them and counts them.
 Usage::
 
     from jaxnav.experiments import mrclam as xp
-    results = xp.run_robot(1, duration=300.0)
-    print(xp.format_table(results))
+    seq, results = xp.run_robot(1, duration=300.0)
+    print(xp.format_table([(1, r) for r in results]))
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav import metrics
+from jaxnav.experiments import report
 from jaxnav.io import mrclam as data
 from jaxnav.localization import ekf, mcl, ukf
 from jaxnav.models import landmarks as lm
@@ -52,9 +56,12 @@ __all__ = [
     "run_robot",
     "format_table",
     "plot_robot",
+    "NOTHING_MAPPED",
 ]
 
 ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
+NOTHING_MAPPED = f"{report.NA} (nothing mapped)"
+"""How a map error is written when the run mapped no landmark."""
 
 
 @dataclass(frozen=True)
@@ -103,7 +110,8 @@ class AlgorithmResult(NamedTuple):
         seconds: wall time of the run, compilation included (s).
         trajectory: :class:`jaxnav.metrics.TrajectoryError`.
         ate: position RMSE after rigid alignment of the path (m).
-        map: :class:`jaxnav.metrics.MapError` over the seen landmarks (SLAM) or None.
+        map: :class:`jaxnav.metrics.MapError` over the seen landmarks (SLAM) or None; its
+            RMSEs are NaN when no landmark was seen (nothing to score).
     """
 
     name: str
@@ -123,8 +131,8 @@ def _dead_reckoning(key, seq, s):
 def _gaussian(module, config):
     def run(key, seq, s):
         params = ekf.KalmanParams(s.motion_noise(), s.sensor_noise(), seq.landmarks)
-        state = module.init(config(s), params, seq.initial_pose, s.initial_cov())
-        _, trace = module.run(config(s), params, seq.controls, seq.observations, state)
+        state = module.init(None, config(s), params, seq.initial_pose, s.initial_cov())
+        _, trace = module.run(None, state, config(s), params, seq.controls, seq.observations)
         return trace.estimate, None, None
 
     return run
@@ -135,15 +143,15 @@ def _mcl(key, seq, s):
     params = mcl.MCLParams(s.motion_noise(), s.sensor_noise(), seq.landmarks)
     k_init, k_run = jax.random.split(key)
     state = mcl.init(k_init, cfg, params, seq.initial_pose, jnp.asarray(s.initial_sd))
-    _, trace = mcl.run(k_run, cfg, params, seq.controls, seq.observations, state)
+    _, trace = mcl.run(k_run, state, cfg, params, seq.controls, seq.observations)
     return trace.estimate, None, None
 
 
 def _ekf_slam(key, seq, s):
     cfg = ekf_slam.EKFSLAMConfig(num_landmarks=seq.landmarks.shape[0], gate_probability=s.gate_probability)
     params = ekf_slam.EKFSLAMParams(s.motion_noise(), s.sensor_noise())
-    state = ekf_slam.init(cfg, params, seq.initial_pose, s.initial_cov())
-    final, trace = ekf_slam.run(cfg, params, seq.controls, seq.observations, state)
+    state = ekf_slam.init(None, cfg, params, seq.initial_pose, s.initial_cov())
+    final, trace = ekf_slam.run(None, state, cfg, params, seq.controls, seq.observations)
     return trace.estimate, trace.landmarks[-1], trace.seen[-1]
 
 
@@ -155,7 +163,7 @@ def _fastslam(version):
         params = fastslam.FastSLAMParams(s.motion_noise(), s.sensor_noise())
         k_init, k_run = jax.random.split(key)
         state = fastslam.init(k_init, cfg, params, seq.initial_pose, jnp.asarray(s.initial_sd))
-        final, trace = fastslam.run(k_run, cfg, params, seq.controls, seq.observations, state)
+        final, trace = fastslam.run(k_run, state, cfg, params, seq.controls, seq.observations)
         landmarks, seen = fastslam.map_estimate(final)
         return trace.estimate, landmarks, seen
 
@@ -188,6 +196,8 @@ def run_algorithm(
     if landmarks is not None:
         map_err = metrics.map_errors(landmarks, seq.landmarks, seen)
         landmarks, seen = np.asarray(landmarks), np.asarray(seen)
+        if not seen.any():  # nothing mapped: nothing to score
+            map_err = map_err._replace(rmse=jnp.asarray(jnp.nan), aligned_rmse=jnp.asarray(jnp.nan))
     return AlgorithmResult(name, np.asarray(est), landmarks, seen, seconds, traj, ate, map_err)
 
 
@@ -224,20 +234,38 @@ def run_robot(
 
 
 def format_table(rows: Sequence[tuple[int, AlgorithmResult]]) -> str:
-    """Markdown table of ``(robot, result)`` rows: RMSEs in mm and mrad as [W]'s tables print them."""
-    lines = [
-        "| robot | algorithm | position RMSE (mm) | heading RMSE (mrad) | ATE, aligned path (mm) "
-        "| landmark RMSE (mm) | aligned landmark RMSE (mm) | time (s) |",
-        "|---|---|---|---|---|---|---|---|",
+    """Markdown table of ``(robot, result)`` rows: RMSEs in mm and mrad as [W]'s tables print them.
+
+    Localization filters have no map (:data:`jaxnav.experiments.report.NONE`); a SLAM run that
+    mapped no landmark has nothing to score (:data:`NOTHING_MAPPED`).
+    """
+    heads = [
+        "robot",
+        "algorithm",
+        "position RMSE (mm)",
+        "heading RMSE (mrad)",
+        "ATE, aligned path (mm)",
+        "landmark RMSE (mm)",
+        "aligned landmark RMSE (mm)",
+        "time (s)",
     ]
+    cells = []
     for robot, r in rows:
-        lm_raw = f"{1e3 * float(r.map.rmse):.0f}" if r.map is not None else "–"
-        lm_al = f"{1e3 * float(r.map.aligned_rmse):.0f}" if r.map is not None else "–"
-        lines.append(
-            f"| {robot} | {r.name} | {1e3 * float(r.trajectory.position_rmse):.0f} | "
-            f"{1e3 * float(r.trajectory.heading_rmse):.0f} | {1e3 * r.ate:.0f} | {lm_raw} | {lm_al} | {r.seconds:.1f} |"
+        lm_raw = None if r.map is None else 1e3 * float(r.map.rmse)
+        lm_al = None if r.map is None else 1e3 * float(r.map.aligned_rmse)
+        cells.append(
+            [
+                str(robot),
+                r.name,
+                report.number(1e3 * float(r.trajectory.position_rmse), 0),
+                report.number(1e3 * float(r.trajectory.heading_rmse), 0),
+                report.number(1e3 * r.ate, 0),
+                report.number(lm_raw, 0, nan=NOTHING_MAPPED),
+                report.number(lm_al, 0, nan=NOTHING_MAPPED),
+                report.number(r.seconds, 1),
+            ]
         )
-    return "\n".join(lines)
+    return report.markdown(heads, cells)
 
 
 def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], path: str) -> None:

@@ -1,25 +1,8 @@
-"""[W] ch. 5 reproduced: the IR emitter positioning experiments of §5.4 as registered experiments.
+"""[W] ch. 5: IR emitter positioning, one simulated drive: simulate, filter, score, draw.
 
-Five experiments of [W] (:mod:`jaxnav.experiments.registry`), each a table of rows
-with the mean over ``R`` seeded runs, its 95 % interval and [W]'s value where
-[W] prints one:
-
-* ``table-5.2`` ([W] §5.4.2): errors at 70 marked spots with the proposed
-  layout (3 unique + 8 repeated IDs), with 11 unique IDs, and with odometry
-  alone; average and maximum over the spots.
-* ``table-5.3`` ([W] §5.4.5): the proposed layout at the 70 spots with the
-  emitter–receiver height from 1.10 to 1.30 m while the filter keeps eq. 5.3
-  calibrated at 1.2 m.
-* ``ir-failure`` ([W] §5.4.5, Fig. 5.16): three laps of the predetermined
-  trajectory with both emitters of one repeated ID switched off (the filter
-  is not told), against all emitters on.
-* ``ir-speeds`` ([W] §5.4.4, Fig. 5.15): three laps at 100–300 mm/s.
-* ``ir-rotation`` ([W] §5.4.3, Fig. 5.14): the trajectory with five turns
-  on the spot, from an unknown start, against odometry.
-
-and one of ours: ``ir-installation``, the 70 spots with the emitters
-installed off their map positions (sd 0–30 mm), the error source [W]
-§5.4.2 names and our other experiments leave out.
+The settings, drives and scoring of [W] §5.4's experiments; the experiments
+themselves (Tables 5.2, 5.3 and the drives of §5.4.3–5.4.5) are in
+:mod:`jaxnav.experiments.ir.tables`.
 
 One run
 -------
@@ -36,9 +19,10 @@ passing by to record the estimated position and orientation", [W] §5.4.2),
 scored by the mean estimate over the stay (circular mean for θ) against the
 spot; on a trajectory every scored step is a record. A run's errors are the
 average and the maximum over its records of ``|x̂ − x|``, ``|ŷ − y|``,
-``|θ̂ − θ|`` and ``dr = ‖(x̂, ŷ) − (x, y)‖`` (mm, rad). The result's ``mean``
-and ``ci95`` are over the runs' averages; its ``max`` is the mean over runs of
-each run's maximum ([W]'s maximum is that of its single run).
+``|θ̂ − θ|`` and ``dr = ‖(x̂, ŷ) − (x, y)‖`` (mm, rad). A run with no scored
+record has nothing to score: its errors are NaN, not 0. ``start_s``, the
+time the filter started (its first unique ID), is NaN for a filter that
+never started.
 
 What is ours, not [W]'s (it gives no coordinates): the 70 spots
 (:func:`jaxnav.sim.ir_world.spot_grid`, a 14 × 5 grid 0.2 m apart, visited
@@ -47,12 +31,6 @@ filter has started), the trajectories (:data:`~jaxnav.sim.ir_world.EXPERIMENT_WA
 :data:`~jaxnav.sim.ir_world.ROTATION_WAYPOINTS`), the odometry error, the
 failed ID (the first repeated ID, code 1), and which laps count (laps 2–3 of
 three: the first includes the start from an unknown pose).
-
-Batching: the runs of a chunk are evaluated one after the other inside one
-compiled ``lax.map`` (``Experiment.batching = "map"``): the filter's start is
-a ``lax.cond`` whose 16,000-candidate re-draw a ``vmap`` would compute at
-every step (measured 2.25 s against 0.38 s per 600-step run). Cells that
-differ only in arrays (height, layout, path, speed) share one compilation.
 """
 
 from __future__ import annotations
@@ -60,7 +38,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax
@@ -69,8 +47,7 @@ import numpy as np
 
 from jaxnav.core.validation import check_choice, check_nonnegative, check_positive, check_positive_int
 from jaxnav.core.weights import wrap_angle
-from jaxnav.experiments import sweep as sw
-from jaxnav.experiments.registry import Cell, Experiment, register
+from jaxnav.experiments import report
 from jaxnav.localization import ir_mcl
 from jaxnav.models import ir
 from jaxnav.sim import ir_receiver, ir_world
@@ -79,13 +56,17 @@ __all__ = [
     "IRSetting",
     "DriveInputs",
     "IRErrors",
-    "IRRow",
+    "COLUMNS",
+    "COLUMN_HEADS",
     "LAYOUTS",
     "ALGORITHMS",
     "DRIVES",
     "HEIGHTS",
     "SPEEDS",
+    "FAILED_CODE",
+    "ROTATION_SCORED_FROM",
     "QUICK",
+    "path_and_record",
     "drive_inputs",
     "installed_layout",
     "run_once",
@@ -94,7 +75,6 @@ __all__ = [
     "format_errors",
     "plot_drive",
     "score",
-    "ir_experiment",
 ]
 
 LAYOUTS = ("proposed", "unique-11")
@@ -119,8 +99,8 @@ class IRSetting:
     """One simulated IR experiment (hashable).
 
     Attributes:
-        layout: ``"proposed"`` (:func:`jaxnav.models.ir.experiment_layout`) or
-            ``"unique-11"`` (:func:`jaxnav.models.ir.unique11_layout`).
+        layout: ``"proposed"`` (:func:`jaxnav.models.ir_world.experiment_layout`) or
+            ``"unique-11"`` (:func:`jaxnav.models.ir_world.unique11_layout`).
         failed_code: a repeated ID (frequency code 1–9) whose emitters are
             switched off in the simulator (the filter keeps the full map), or 0.
         height: emitter–receiver height of the simulated receiver (m); the
@@ -199,7 +179,8 @@ class IRErrors(NamedTuple):
     """One run's errors over its records: averages and maxima (mm, rad), and what the filter did.
 
     ``restarts`` counts the filter's re-draws after its start (``restart_when_lost``);
-    ``start_s`` is the time of its start (s; 0 for odometry).
+    ``start_s`` is the time of its start (s; 0 for odometry, NaN for a filter that never
+    started). The errors are NaN when the drive has no scored record.
     """
 
     x_mm: jax.Array
@@ -219,11 +200,12 @@ COLUMN_HEADS = ("x [mm]", "y [mm]", "θ [rad]", "dr [mm]")
 
 
 def _layout(name: str) -> ir.EmitterLayout:
-    return ir.experiment_layout() if name == "proposed" else ir.unique11_layout()
+    return ir_world.experiment_layout() if name == "proposed" else ir_world.unique11_layout()
 
 
-def _path_and_record(s: IRSetting) -> tuple[np.ndarray, np.ndarray]:
-    """``(poses [T + 1, 3], record [T])`` of a setting (host-side)."""
+def path_and_record(s: IRSetting) -> tuple[np.ndarray, np.ndarray]:
+    """``(poses [T + 1, 3], record [T])`` of a setting (host-side): the true path and the record of each
+    step (:class:`DriveInputs`)."""
     if s.drive == "spots":
         nx, ny = s.spots
         # rows from the east end, so that the first spot follows the lead-in with no long leg
@@ -274,7 +256,7 @@ def drive_inputs(s: IRSetting) -> DriveInputs:
         if off.size == 0:
             raise ValueError(f"no emitter of layout {s.layout!r} carries code {s.failed_code}")
         sim_layout = ir.without_emitters(full, off.tolist())
-    poses, record = _path_and_record(s)
+    poses, record = path_and_record(s)
     config = ir_mcl.IRMCLConfig(num_particles=s.num_particles)
     return DriveInputs(
         path=jnp.asarray(poses, jnp.float32),
@@ -308,7 +290,7 @@ def score(estimate: jax.Array, truth: jax.Array, record: jax.Array) -> tuple[jax
     Returns:
         ``(mean [4], max [4])`` of ``(|x̂ − x| mm, |ŷ − y| mm, |θ̂ − θ| rad, dr mm)``
         over the records; record ``k``'s pose is the mean of its steps' poses
-        (circular for θ).
+        (circular for θ). Both are NaN when no step is scored.
     """
     t = record.shape[0]
     seg = jnp.where(record >= 0, record, t)  # unscored steps land in an extra segment, dropped
@@ -326,10 +308,12 @@ def score(estimate: jax.Array, truth: jax.Array, record: jax.Array) -> tuple[jax
     tx, ty, tth, _ = mean_pose(truth)
     dx, dy = 1000.0 * jnp.abs(ex - tx), 1000.0 * jnp.abs(ey - ty)
     errs = jnp.stack([dx, dy, jnp.abs(wrap_angle(eth - tth)), jnp.hypot(dx, dy)], axis=-1)  # [t, 4]
-    count = jnp.maximum(jnp.sum(used), 1)
+    scored = jnp.sum(used)
+    count = jnp.maximum(scored, 1)
     mean = jnp.sum(jnp.where(used[:, None], errs, 0.0), axis=0) / count
     worst = jnp.max(jnp.where(used[:, None], errs, 0.0), axis=0)
-    return mean, worst
+    nothing = scored == 0  # no record: nothing to score, NaN rather than 0
+    return jnp.where(nothing, jnp.nan, mean), jnp.where(nothing, jnp.nan, worst)
 
 
 @functools.cache
@@ -342,7 +326,7 @@ def run_once(algorithm: str, num_particles: int):
     """
     check_choice("algorithm", algorithm, ALGORITHMS)
     config = ir_mcl.IRMCLConfig(num_particles=int(num_particles))
-    area = ir_world.layout_area(ir.experiment_layout())  # unique11_layout has the same positions
+    area = ir_world.layout_area(ir_world.experiment_layout())  # unique11_layout has the same positions
 
     def fn(key: jax.Array, inputs: DriveInputs) -> IRErrors:
         sim, trace = _simulate_and_filter(key, inputs, config if algorithm == "mcl" else None, area)
@@ -360,7 +344,7 @@ def _simulate_and_filter(key, inputs: DriveInputs, config: ir_mcl.IRMCLConfig | 
     if config is None:
         return sim, None
     state0 = ir_mcl.init(k_init, config, inputs.filter, area)
-    _, trace = ir_mcl.run(k_run, config, inputs.filter, sim.controls, sim.detections, state0)
+    _, trace = ir_mcl.run(k_run, state0, config, inputs.filter, sim.controls, sim.detections)
     return sim, trace
 
 
@@ -370,7 +354,8 @@ def _errors(estimate, sim, inputs: DriveInputs, trace: ir_mcl.IRMCLInfo | None =
         restarts, start_s = jnp.asarray(0), jnp.asarray(0.0)
     else:
         restarts = jnp.maximum(jnp.sum(trace.reinitialised) - 1, 0)
-        start_s = (jnp.argmax(trace.started) + 1) * inputs.dt
+        # the step the filter started at; NaN when it never started (no unique ID seen)
+        start_s = jnp.where(jnp.any(trace.started), (jnp.argmax(trace.started) + 1) * inputs.dt, jnp.nan)
     return IRErrors(*mean, *worst, restarts.astype(jnp.int32), jnp.asarray(start_s, jnp.float32))
 
 
@@ -402,7 +387,7 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
     """
     inputs = drive_inputs(setting)
     config = ir_mcl.IRMCLConfig(num_particles=setting.num_particles)
-    sim, trace = _simulate_and_filter(key, inputs, config, ir_world.layout_area(ir.experiment_layout()))
+    sim, trace = _simulate_and_filter(key, inputs, config, ir_world.layout_area(ir_world.experiment_layout()))
     odometry = ir_world.dead_reckoning(sim.initial_pose, sim.controls)
     return Drive(
         setting,
@@ -417,16 +402,16 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
 
 def format_errors(rows: Sequence[tuple[str, IRErrors]]) -> str:
     """A small table of average and maximum errors per row (mm, rad)."""
-    head = f"{'':<10}" + "".join(f"{h:>10}" for h in COLUMN_HEADS) + "".join(f"{'max ' + h:>14}" for h in COLUMN_HEADS)
-    lines = [head]
-    for name, e in rows:
-        vals = [float(v) for v in e[:8]]
-        lines.append(
-            f"{name:<10}"
-            + "".join(f"{_fmt(c, v):>10}" for c, v in zip(COLUMNS, vals[:4]))
-            + "".join(f"{_fmt(c, v):>14}" for c, v in zip(COLUMNS, vals[4:]))
-        )
-    return "\n".join(lines)
+    columns = [report.Column("", 10, "<")] + [report.Column(h, 10) for h in COLUMN_HEADS]
+    columns += [report.Column("max " + h, 14) for h in COLUMN_HEADS]
+    cells = [
+        [name] + [report.number(float(v), _digits(c)) for c, v in zip(COLUMNS + COLUMNS, e[:8])] for name, e in rows
+    ]
+    return report.text(columns, cells, rule=False)
+
+
+def _digits(col: str) -> int:
+    return 3 if col.startswith("theta") else 0
 
 
 def plot_drive(drive: Drive, path: str | None = None, ax=None):
@@ -476,313 +461,3 @@ def plot_drive(drive: Drive, path: str | None = None, ax=None):
             fig.savefig(path, dpi=110)
             plt.close(fig)
     return ax
-
-
-# ---------------------------------------------------------------------------
-# experiments
-
-
-@dataclass(frozen=True)
-class IRRow:
-    """One result row: ``name`` (the JSON ``method``), the algorithm, the setting and [W]'s values.
-
-    ``paper`` and ``paper_max``: [W]'s average and maximum of x, y, θ, dr
-    (mm, rad), or ``None`` where [W] prints none.
-    """
-
-    name: str
-    algorithm: str
-    setting: IRSetting
-    paper: tuple | None = None
-    paper_max: tuple | None = None
-    label: str | None = None
-
-    @property
-    def row(self) -> str:
-        return self.label or self.name
-
-
-def _setting_json(s: IRSetting) -> dict:
-    return {
-        "layout": s.layout,
-        "failed_code": s.failed_code,
-        "height_m": s.height,
-        "speed_mm_s": round(1000 * s.speed, 3),
-        "drive": s.drive,
-        "num_particles": s.num_particles,
-        "installation_mm": round(1000 * s.installation_sd, 3),
-    }
-
-
-def _quick(s: IRSetting, num_steps: int | None) -> IRSetting:
-    return replace(s, **QUICK, num_steps=num_steps)
-
-
-def _padded(rows: Sequence[IRRow], quick: bool) -> list[IRSetting]:
-    """The rows' settings (quick or not) padded to the longest drive of each kind: one compilation per kind."""
-    settings = [_quick(r.setting, None) if quick else r.setting for r in rows]
-    longest: dict[str, int] = {}
-    for s in settings:
-        longest[s.drive] = max(longest.get(s.drive, 0), len(_path_and_record(s)[1]))
-    return [replace(s, num_steps=longest[s.drive]) for s in settings]
-
-
-def summarize_errors(values: dict, paper: tuple | None, paper_max: tuple | None) -> dict:
-    """Per column: ``{"mean", "ci95": [lo, hi], "median", "max", "max_ci95", "paper", "paper_max"}``.
-
-    ``mean``, ``ci95`` and ``median`` are over the runs' averages (the median shows a run
-    that lost the robot for what it is: one run, not a shift of all); ``max`` is the
-    mean over runs of each run's maximum.
-    """
-    out = {}
-    for i, col in enumerate(COLUMNS):
-        m, lo, hi = sw.mean_ci(values[col])
-        mm, mlo, mhi = sw.mean_ci(values[col + "_max"])
-        out[col] = {
-            "mean": m,
-            "ci95": [lo, hi],
-            "median": float(np.median(values[col])),
-            "max": mm,
-            "max_ci95": [mlo, mhi],
-            "paper": None if paper is None else paper[i],
-            "paper_max": None if paper_max is None else paper_max[i],
-        }
-    return out
-
-
-def ir_experiment(
-    name: str,
-    title: str,
-    rows: Sequence[IRRow],
-    notes: str = "",
-    row_key: str | None = None,
-    quick_rows: Sequence[int] | None = None,
-) -> Experiment:
-    """Build and register an IR experiment from its rows.
-
-    ``row_key``: an extra JSON field per row (``"height_m"``, ``"speed_mm_s"``);
-    ``quick_rows``: the indices of the rows the quick variant runs (default all).
-    """
-    rows = tuple(rows)
-    by_label = {r.row: r for r in rows}
-    if len(by_label) != len(rows):
-        raise ValueError(f"row labels must be unique in {name}")
-    quick_subset = rows if quick_rows is None else tuple(rows[i] for i in quick_rows)
-
-    def cells(quick: bool) -> list[Cell]:
-        out = []
-        chosen = quick_subset if quick else rows
-        for row, s in zip(chosen, _padded(chosen, quick)):
-            fn = run_once(row.algorithm, s.num_particles)
-            out.append(Cell(f"{row.row}|{row.algorithm}", row.row, row.algorithm, s, fn, (drive_inputs(s),)))
-        return out
-
-    def summarize(raw: dict, cell_list: list[Cell], quick: bool) -> dict:
-        out_rows = []
-        for cell in cell_list:
-            row, vals = by_label[cell.row], raw[cell.id]
-            entry = {
-                "row": row.row,
-                "method": row.name,
-                "algorithm": row.algorithm,
-                "setting": _setting_json(cell.setting),
-            }
-            if row_key == "height_m":
-                entry["height_m"] = row.setting.height
-            if row_key == "speed_mm_s":
-                entry["speed_mm_s"] = round(1000 * row.setting.speed, 3)
-            if row_key == "installation_mm":
-                entry["installation_mm"] = round(1000 * row.setting.installation_sd, 3)
-            entry.update(summarize_errors(vals, row.paper, row.paper_max))
-            entry["restarts"] = float(np.mean(vals["restarts"]))
-            entry["start_s"] = float(np.mean(vals["start_s"]))
-            out_rows.append(entry)
-        return {"rows": out_rows, "notes": notes}
-
-    return register(
-        Experiment(name, title, cells, summarize, render_table, markdown_table, plot_table, notes, batching="map")
-    )
-
-
-def _fmt(col: str, v: float | None) -> str:
-    if v is None or not np.isfinite(v):
-        return "–"
-    return f"{v:.3f}" if col.startswith("theta") else f"{v:.0f}"
-
-
-def render_table(result: dict) -> str:
-    """Terminal table: per row, ours (mean ± half-interval, mean maximum) and [W]'s average / maximum."""
-    lines = [
-        f"{result['experiment']}: {result['title']}  ({result['runs']} runs per row"
-        f"{', quick variant' if result.get('quick') else ''}; average over records: mean ± 95 % half-interval "
-        "over runs; max: mean over runs of the run's maximum)"
-    ]
-    head = (
-        f"{'row':<16}{'':<5}"
-        + "".join(f"{h:>18}" for h in COLUMN_HEADS)
-        + "".join(f"{'max ' + h:>14}" for h in COLUMN_HEADS)
-        + f"{'median dr':>12}"
-    )
-    lines += [head, "-" * len(head)]
-    for r in result["rows"]:
-        ours = "".join(
-            f"{_fmt(c, r[c]['mean']) + ' ± ' + _fmt(c, (r[c]['ci95'][1] - r[c]['ci95'][0]) / 2):>18}" for c in COLUMNS
-        )
-        ours += "".join(f"{_fmt(c, r[c]['max']):>14}" for c in COLUMNS)
-        ours += f"{_fmt('dr_mm', r['dr_mm'].get('median')):>12}"
-        lines.append(f"{r['row']:<16}{'ours':<5}{ours}")
-        if any(r[c]["paper"] is not None for c in COLUMNS):
-            paper = "".join(f"{_fmt(c, r[c]['paper']):>18}" for c in COLUMNS)
-            paper += "".join(f"{_fmt(c, r[c]['paper_max']):>14}" for c in COLUMNS)
-            lines.append(f"{'':<16}{'[W]':<5}{paper}")
-    if result.get("notes"):
-        lines.append(result["notes"])
-    return "\n".join(lines)
-
-
-def markdown_table(result: dict) -> str:
-    """Markdown: per column ``mean [lo, hi] ([W])`` for the average and ``max ([W])`` for the maximum."""
-    head = (
-        "| row | "
-        + " | ".join(COLUMN_HEADS)
-        + " | "
-        + " | ".join("max " + h for h in COLUMN_HEADS)
-        + " | median dr [mm] |"
-    )
-    lines = [
-        f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per row; average: mean "
-        "[95 % interval] (thesis); max: mean over runs of each run's maximum (thesis); median over runs of "
-        "the average dr)",
-        "",
-        head,
-        "|" + " --- |" * (2 + 2 * len(COLUMNS)),
-    ]
-    for r in result["rows"]:
-        avg = [
-            f"{_fmt(c, r[c]['mean'])} [{_fmt(c, r[c]['ci95'][0])}, {_fmt(c, r[c]['ci95'][1])}] "
-            f"({_fmt(c, r[c]['paper'])})"
-            for c in COLUMNS
-        ]
-        mx = [f"{_fmt(c, r[c]['max'])} ({_fmt(c, r[c]['paper_max'])})" for c in COLUMNS]
-        lines.append(
-            f"| {r['row']} | "
-            + " | ".join(avg)
-            + " | "
-            + " | ".join(mx)
-            + f" | {_fmt('dr_mm', r['dr_mm'].get('median'))} |"
-        )
-    if result.get("notes"):
-        lines += ["", result["notes"]]
-    return "\n".join(lines)
-
-
-def plot_table(result: dict, path: str) -> None:
-    """dr per row: average (bar, 95 % interval) and mean maximum (dot), [W]'s as red marks."""
-    import matplotlib.pyplot as plt
-
-    rows = result["rows"]
-    x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * len(rows) + 3), 4.2))
-    means = np.array([r["dr_mm"]["mean"] for r in rows])
-    lo = np.array([r["dr_mm"]["ci95"][0] for r in rows])
-    hi = np.array([r["dr_mm"]["ci95"][1] for r in rows])
-    ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours: average ({result['runs']} runs, 95 % CI)")
-    ax.errorbar(x, means, yerr=[means - lo, hi - means], fmt="none", color="k", capsize=3)
-    ax.plot(x, [r["dr_mm"]["max"] for r in rows], "o", color="tab:blue", label="ours: maximum (mean over runs)")
-    for key, style, label in (("paper", "r_", "[W] average"), ("paper_max", "rx", "[W] maximum")):
-        px = [i for i, r in enumerate(rows) if r["dr_mm"][key] is not None]
-        if px:
-            ax.plot(px, [rows[i]["dr_mm"][key] for i in px], style, ms=18 if style == "r_" else 8, mew=3, label=label)
-    ax.set_xticks(x)
-    ax.set_xticklabels([r["row"] for r in rows], fontsize=8, rotation=30 if len(rows) > 6 else 0)
-    ax.set_ylabel("robot position error dr (mm)")
-    ax.legend(fontsize=8)
-    ax.set_title(f"{result['experiment']}: {result['title']}", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-# ---------------------------------------------------------------------------
-# the five experiments of [W] §5.4
-
-_SPOTS = IRSetting()
-_LOOP = IRSetting(drive="loop")
-
-ir_experiment(
-    "table-5.2",
-    "IR positioning at 70 marked spots: proposed layout, 11 unique IDs, odometry ([W] Table 5.2)",
-    [
-        IRRow("proposed", "mcl", _SPOTS, (22, 29, 0.06, 36), (69, 79, 0.23, 105)),
-        IRRow("unique-11", "mcl", replace(_SPOTS, layout="unique-11"), (30, 25, 0.04, 39), (87, 91, 0.10, 126)),
-        IRRow("odometry", "odometry", _SPOTS, (94, 55, 0.03, 108), (161, 99, 0.08, 189)),
-    ],
-)
-
-_T53 = {  # [W] Table 5.3: height -> (average x, y, θ, dr), (maximum x, y, θ, dr)
-    1.10: ((54, 60, 0.20, 80), (129, 216, 0.22, 251)),
-    1.12: ((74, 42, 0.12, 85), (141, 96, 0.16, 171)),
-    1.14: ((38, 30, 0.10, 49), (103, 76, 0.16, 128)),
-    1.16: ((29, 38, 0.11, 47), (56, 88, 0.15, 105)),
-    1.18: ((25, 26, 0.04, 36), (45, 38, 0.08, 59)),
-    1.20: ((22, 29, 0.07, 36), (69, 79, 0.23, 105)),
-    1.22: ((26, 28, 0.05, 39), (53, 47, 0.07, 70)),
-    1.24: ((36, 30, 0.01, 47), (63, 74, 0.02, 97)),
-    1.26: ((22, 36, 0.06, 42), (50, 72, 0.08, 88)),
-    1.28: ((87, 21, 0.04, 90), (122, 39, 0.05, 128)),
-    1.30: ((56, 51, 0.07, 76), (98, 77, 0.11, 124)),
-}
-
-ir_experiment(
-    "table-5.3",
-    "IR positioning at the 70 spots against the emitter-receiver height, eq. 5.3 calibrated at 1.2 m ([W] Table 5.3)",
-    [IRRow("proposed", "mcl", replace(_SPOTS, height=h), *_T53[h], label=f"{h:.2f} m") for h in HEIGHTS],
-    row_key="height_m",
-    quick_rows=(0, 5, 10),
-)
-
-ir_experiment(
-    "ir-failure",
-    "IR positioning with both emitters of one repeated ID failed, three laps ([W] §5.4.5, Fig. 5.16)",
-    [
-        IRRow("proposed", "mcl", _LOOP, label="all emitters"),
-        IRRow("failed-2", "mcl", replace(_LOOP, failed_code=FAILED_CODE), label="2 failed"),
-    ],
-    notes=f"The two emitters of repeated ID {FAILED_CODE} are dark in the simulator; the filter's map still has "
-    "them. Laps 2-3 of three are scored. [W] shows the path only.",
-)
-
-ir_experiment(
-    "ir-speeds",
-    "IR positioning at 100-300 mm/s, three laps ([W] §5.4.4, Fig. 5.15)",
-    [IRRow("proposed", "mcl", replace(_LOOP, speed=v), label=f"{1000 * v:.0f} mm/s") for v in SPEEDS],
-    notes="Laps 2-3 of three are scored. [W] shows the paths only and says speed does not change the accuracy.",
-    row_key="speed_mm_s",
-    quick_rows=(2, 4),
-)
-
-ir_experiment(
-    "ir-rotation",
-    "IR positioning on the trajectory with five turns, unknown start ([W] §5.4.3, Fig. 5.14)",
-    [
-        IRRow("proposed", "mcl", IRSetting(drive="rotation")),
-        IRRow("odometry", "odometry", IRSetting(drive="rotation")),
-    ],
-    notes=f"Steps from {ROTATION_SCORED_FROM:g} s on are scored (after the second emitter). [W] shows the path only.",
-)
-
-INSTALLATION_SDS = (0.0, 0.01, 0.02, 0.03)
-"""``ir-installation``: sd of the emitters' installation error (m)."""
-
-ir_experiment(
-    "ir-installation",
-    "IR positioning at the 70 spots with emitters installed off their map positions (ours, not in [W])",
-    [
-        IRRow("proposed", "mcl", replace(_SPOTS, installation_sd=sd), label=f"{1000 * sd:.0f} mm")
-        for sd in INSTALLATION_SDS
-    ],
-    notes="Each run draws every emitter's true position around its map position with the given sd per axis; the filter "
-    "keeps the map. [W] §5.4.2 names installation errors as a source of its 36 mm; our other experiments have none.",
-    row_key="installation_mm",
-    quick_rows=(0, 3),
-)

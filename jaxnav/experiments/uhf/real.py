@@ -47,8 +47,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core.validation import check_choice, check_positive, check_positive_int
+from jaxnav.experiments import report
 from jaxnav.io import adarf
 from jaxnav.localization import rfid_tag
+from jaxnav.models import uhf_calibration
 from jaxnav.models import uhf_rfid as U
 
 __all__ = [
@@ -132,12 +134,12 @@ def _xyz(xy: np.ndarray, height: float) -> jax.Array:
     return jnp.asarray([xy[0], xy[1], height], jnp.float32)
 
 
-def anchor_gamma(reads: U.UHFReads, anchor_xy: np.ndarray, setting: RealSetting) -> U.GammaFit:
+def anchor_gamma(reads: U.UHFReads, anchor_xy: np.ndarray, setting: RealSetting) -> uhf_calibration.GammaFit:
     """(k, θ) by [A] §4.3.1's anchor fit: the anchor's reads against ``a`` of the model at its known position."""
     a = U.power_scale(
         reads.reader, _xyz(anchor_xy, setting.antenna_height), channel_params(), wavelength=reads.wavelength
     )
-    return U.estimate_gamma(reads.rssi.ravel(), a.ravel(), reads.mask.ravel())
+    return uhf_calibration.estimate_gamma(reads.rssi.ravel(), a.ravel(), reads.mask.ravel())
 
 
 def prior_rmse(truth_xy: np.ndarray) -> float:
@@ -191,7 +193,7 @@ def localize(
             est = []
             for r in range(seeds):
                 k_init, k_run = jax.random.split(jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), g), r))
-                _, trace = rfid_tag.run(k_run, config, params, reads[g], rfid_tag.init(k_init, config, params))
+                _, trace = rfid_tag.run(k_run, rfid_tag.init(k_init, config, params), config, params, reads[g])
                 est.append(np.asarray(trace.estimate[:, :2], np.float64))
             est = np.stack(est)
             err = np.linalg.norm(est - exp.tags_xy[g], axis=-1)
@@ -212,18 +214,34 @@ def localize(
 
 def format_results(results: Sequence[TagResult]) -> str:
     """A table: final error (m, mean and range over seeds) and its x / y parts per tag and weighting."""
-    lines = [
-        f"{'experiment':<16}{'tag':>4}{'weighting':>10}{'error m':>9}{'(min-max)':>14}{'dx m':>8}{'dy m':>8}"
-        f"{'prior m':>9}{'anchor k':>10}"
+    columns = [
+        report.Column("experiment", 16, "<"),
+        report.Column("tag", 4),
+        report.Column("weighting", 10),
+        report.Column("error m", 9),
+        report.Column("(min-max)", 14),
+        report.Column("dx m", 8),
+        report.Column("dy m", 8),
+        report.Column("prior m", 9),
+        report.Column("anchor k", 10),
     ]
+    rows = []
     for r in results:
         d = r.estimates[:, -1] - r.truth
-        lines.append(
-            f"{r.experiment:<16}{r.tag:>4}{r.weighting:>10}{r.final_error.mean():>9.3f}"
-            f"{f'({r.final_error.min():.3f}-{r.final_error.max():.3f})':>14}{d[:, 0].mean():>8.3f}{d[:, 1].mean():>8.3f}"
-            f"{prior_rmse(r.truth):>9.3f}{r.gamma.k:>10.1f}"
+        rows.append(
+            [
+                r.experiment,
+                str(r.tag),
+                r.weighting,
+                report.number(r.final_error.mean(), 3),
+                f"({report.number(r.final_error.min(), 3)}-{report.number(r.final_error.max(), 3)})",
+                report.number(d[:, 0].mean(), 3),
+                report.number(d[:, 1].mean(), 3),
+                report.number(prior_rmse(r.truth), 3),
+                report.number(r.gamma.k, 1),
+            ]
         )
-    return "\n".join(lines)
+    return report.text(columns, rows, rule=False)
 
 
 def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray | None = None) -> None:

@@ -1,0 +1,349 @@
+"""The skeleton every jaxnav filter is built from.
+
+A filter is written as pure parts, collected in a :class:`FilterSpec`:
+
+* ``kernel(key, state, config, params, *inputs) -> (state, info)``: one step, a pure
+  traceable function (not jitted, not validated). It is public in every filter module
+  (``mcl.kernel``, ``pf_slam.kernel``, …), so it can be used inside a caller's own
+  ``jit``, ``vmap``, ``grad`` or ``lax.scan``;
+* host-side checks of the parameters, the state and the step's inputs, raising
+  ``ValueError`` with the argument's name;
+* optionally a host-side ``prepare`` of the inputs (dtype casts) and the number of
+  steps per scan iteration.
+
+:func:`build` turns a spec into the public ``step`` and ``run``, with one argument order
+for every filter::
+
+    state, info = step(key, state, config, params, *inputs)
+    final_state, trace = run(key, state, config, params, *inputs_over_time, donate_state=False)
+
+``run`` is one ``lax.scan`` of the kernel over the leading (time) axis of the inputs
+(:func:`scan`); step ``t`` uses the key ``jax.random.fold_in(key, t)``, so a Python loop
+of ``step`` calls with those keys gives the same result. Deterministic filters (EKF, UKF,
+grid, EKF-SLAM) take the key too, so that every filter can be called the same way, and
+accept ``None``.
+
+What the skeleton guarantees:
+
+* **Validation once per configuration and parameters.** ``config`` is checked when it is
+  constructed (its ``__post_init__``); ``params`` are checked the first time a
+  ``(config, params)`` pair with those *values* is seen, not at every call (an online loop
+  passes the same parameters at every step). The memo is keyed on the parameters' tree
+  structure, shapes, dtypes and a hash of their bytes, never on object identity, so a
+  NumPy array changed in place is checked again. The state and the inputs change at every
+  call and are checked at every call. Value checks are skipped for tracers (inside a
+  caller's ``jit``/``vmap`` the values are unknown); shape checks always run.
+* **Compiled once per configuration and shapes.** ``config`` is the only static argument;
+  new keys, parameters, data or states of the same shapes reuse the compiled program
+  (``step.trace_count()`` and ``run.trace_count()`` count the traces, for tests).
+* **Donation.** A spec with ``donate_step`` donates the state to the jitted ``step`` (the
+  tables of PF-SLAM, PS-SLAM and FastSLAM are then updated in place: do not use the old
+  state after the call); ``run(..., donate_state=True)`` reuses the initial state's
+  buffers for the scan's carry instead of copying them in.
+
+The jitted functions are reachable as ``step.jitted`` and ``run.jitted`` (and
+``run.jitted_donated``), e.g. to ``.lower()`` them and read the compiled program.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["FilterSpec", "Filter", "build", "scan", "check_key"]
+
+
+def _no_check(*args: Any, **kwargs: Any) -> None:
+    return None
+
+
+def _no_prepare(config: Any, *inputs: Any) -> tuple:
+    return inputs
+
+
+def _one_step_per_iteration(config: Any) -> int:
+    return 1
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """A filter's pure parts, from which :func:`build` makes its ``step`` and ``run``.
+
+    Attributes:
+        name: the filter's name in messages (e.g. ``"MCL"``).
+        kernel: ``(key, state, config, params, *inputs) -> (state, info)``, pure and traceable.
+        config_type: the configuration's class; anything else is refused.
+        inputs: the names of the per-step inputs, in order (e.g. ``("control", "observation")``);
+            ``run`` takes them with a leading time axis, under the same names.
+        check_params: ``(config, params)``, raises ``ValueError``; memoised by value (module docstring).
+        check_state: ``(config, params, state)``, raises ``ValueError``.
+        check_inputs: ``(config, params, *inputs, time_axis=bool)``, raises ``ValueError``.
+        prepare: ``(config, *inputs) -> inputs`` on the host after the checks (dtype casts).
+        deterministic: the kernel ignores its key; ``None`` is accepted as the key.
+        donate_step: ``step`` donates its state (in-place tables).
+        unroll: ``config -> int``, steps per ``lax.scan`` iteration in ``run``.
+        step_doc, run_doc: the first paragraphs of the generated functions' docstrings.
+    """
+
+    name: str
+    kernel: Callable[..., tuple[Any, Any]]
+    config_type: type
+    inputs: tuple[str, ...] = ("control", "observation")
+    check_params: Callable[[Any, Any], None] = _no_check
+    check_state: Callable[[Any, Any, Any], None] = _no_check
+    check_inputs: Callable[..., None] = _no_check
+    prepare: Callable[..., tuple] = _no_prepare
+    deterministic: bool = False
+    donate_step: bool = False
+    unroll: Callable[[Any], int] = _one_step_per_iteration
+    step_doc: str = ""
+    run_doc: str = ""
+    time_inputs: tuple[str, ...] | None = field(default=None)
+
+    @property
+    def run_inputs(self) -> tuple[str, ...]:
+        """The names ``run`` gives its inputs (default: those of ``step``)."""
+        return self.inputs if self.time_inputs is None else self.time_inputs
+
+
+class Filter(NamedTuple):
+    """A filter's public ``step`` and ``run`` (see :func:`build`)."""
+
+    step: Callable[..., tuple[Any, Any]]
+    run: Callable[..., tuple[Any, Any]]
+
+
+def check_key(key: Any, *, allow_none: bool = False) -> None:
+    """``key`` must be a PRNG key: ``jax.random.key(seed)`` or ``jax.random.PRNGKey(seed)``.
+
+    Raises ``ValueError`` naming the argument (JAX's own message for a wrong key names
+    neither the argument nor the function).
+    """
+    if key is None:
+        if allow_none:
+            return
+        raise ValueError("key must be a PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got None")
+    dtype = getattr(key, "dtype", None)
+    if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
+        if np.shape(key) == ():
+            return
+    elif dtype == np.uint32 and np.shape(key) == (2,):
+        return
+    raise ValueError(
+        "key must be one PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got "
+        f"{type(key).__name__} of dtype {dtype} and shape {np.shape(key)}"
+    )
+
+
+def scan(
+    kernel: Callable[..., tuple[Any, Any]],
+    key: jax.Array | None,
+    state: Any,
+    config: Any,
+    params: Any,
+    *inputs: Any,
+    unroll: int = 1,
+) -> tuple[Any, Any]:
+    """The pure ``run``: one ``lax.scan`` of ``kernel`` over the leading axis of ``inputs``.
+
+    Step ``t`` is ``kernel(fold_in(key, t), state, config, params, *inputs_t)``; with
+    ``key=None`` (deterministic filters) the kernel gets ``None``. Returns
+    ``(final_state, trace)``, the trace being the kernel's info stacked over time.
+    ``unroll`` steps share one loop iteration (``lax.scan``'s ``unroll``): with 2, a state
+    that a step rebuilds out of place (a gather) is written straight into the loop's buffer
+    every second step instead of being copied back at every step, for a longer compilation.
+    Traceable: call it inside your own ``jit``, ``vmap`` or ``grad``.
+    """
+    if key is None:
+        return jax.lax.scan(lambda s, x: kernel(None, s, config, params, *x), state, inputs, unroll=unroll)
+    num_steps = jax.tree_util.tree_leaves(inputs)[0].shape[0]
+
+    def body(carry: Any, xs: tuple) -> tuple[Any, Any]:
+        t, step_inputs = xs
+        return kernel(jax.random.fold_in(key, t), carry, config, params, *step_inputs)
+
+    return jax.lax.scan(body, state, (jnp.arange(num_steps), inputs), unroll=unroll)
+
+
+class _ParamsMemo:
+    """The ``(config, params)`` values that passed ``check``: each distinct pair is checked once.
+
+    The memo is keyed on values (:func:`_fingerprint`). Hashing the values at every call of an
+    online loop would cost more than a small step, so the leaves of the last parameters are kept:
+    when a call passes the very same leaves again and all of them are JAX arrays (immutable), their
+    values are those already hashed. Leaves that can change in place (NumPy arrays) are hashed at
+    every call.
+    """
+
+    def __init__(self, check: Callable[[Any, Any], None], maxsize: int = 64) -> None:
+        self._check = check
+        self._maxsize = maxsize
+        self._passed: OrderedDict[tuple, None] = OrderedDict()
+        self._lock = threading.Lock()
+        self._last: tuple | None = None  # (treedef, leaves, memo key) of the last immutable params
+
+    def __call__(self, config: Any, params: Any) -> None:
+        leaves, treedef = jax.tree_util.tree_flatten(params)
+        last = self._last
+        if (
+            last is not None
+            and last[0] == treedef
+            and len(last[1]) == len(leaves)
+            and all(a is b for a, b in zip(last[1], leaves))
+            and last[2][0] == config
+        ):
+            return  # the same immutable arrays as the last call, already checked with this config
+        fingerprint = _fingerprint(leaves, treedef)
+        if fingerprint is None:  # tracers (values unknown) or leaves that are not arrays
+            self._check(config, params)
+            return
+        memo_key = (config, fingerprint)
+        with self._lock:
+            known = memo_key in self._passed
+            if known:
+                self._passed.move_to_end(memo_key)
+        if not known:
+            self._check(config, params)
+            with self._lock:
+                self._passed[memo_key] = None
+                while len(self._passed) > self._maxsize:
+                    self._passed.popitem(last=False)
+        immutable = all(isinstance(leaf, jax.Array) for leaf in leaves)
+        self._last = (treedef, leaves, memo_key) if immutable else None
+
+
+def _fingerprint(leaves: list, treedef: Any) -> tuple | None:
+    """Tree structure, shapes, dtypes and a 128-bit hash of the values of a pytree's ``leaves``;
+    ``None`` when a leaf is a tracer or not an array of numbers."""
+    digest = hashlib.blake2b(digest_size=16)
+    meta = []
+    for leaf in leaves:
+        if isinstance(leaf, jax.core.Tracer):
+            return None
+        try:
+            values = np.asarray(leaf)
+        except Exception:  # noqa: BLE001  (a leaf NumPy cannot read: check every call)
+            return None
+        if values.dtype.kind not in "biufc":
+            return None
+        meta.append((values.shape, values.dtype.str, type(leaf).__name__))
+        digest.update(np.ascontiguousarray(values).tobytes())
+    return treedef, tuple(meta), digest.digest()
+
+
+def _article(name: str) -> str:
+    """``name`` with "a" or "an" as it is read aloud ("an MCLConfig", "a GridConfig", "an EKFConfig")."""
+    spelled = len(name) > 1 and name[:2].isupper()  # an initialism: its first letter is spelled out
+    vowel_sound = name[0] in ("AEFHILMNORSX" if spelled else "AEIOU")
+    return ("an " if vowel_sound else "a ") + name
+
+
+def _signature(
+    head: Sequence[str], inputs: Sequence[str], keyword_only: Sequence[tuple[str, Any]] = ()
+) -> inspect.Signature:
+    positional = [inspect.Parameter(n, inspect.Parameter.POSITIONAL_OR_KEYWORD) for n in (*head, *inputs)]
+    keywords = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=d) for n, d in keyword_only]
+    return inspect.Signature(positional + keywords)
+
+
+_STEP_NOTE = """
+Inputs are validated on the host first (the parameters once per value, see
+:mod:`jaxnav.core.filter`); the step is then jitted with ``config`` static. The pure
+step is :func:`kernel`, for use inside your own ``jit``/``vmap``/``grad``.
+"""
+
+_DONATED_NOTE = """
+``state`` is *donated*: its buffers are reused for the new state (the tables are
+updated in place), so do not use the old ``state`` after the call.
+"""
+
+_RUN_NOTE = """
+One ``lax.scan`` of :func:`kernel` over the leading (time) axis of the inputs; step
+``t`` uses the key ``jax.random.fold_in(key, t)``, so a loop of :func:`step` calls with
+those keys gives the same result. With ``donate_state=True`` the initial state's buffers
+are reused for the filter's state (do not use it after the call); without it XLA copies
+the initial state into the scan once per call. Returns ``(final_state, trace)``, the
+trace being the per-step info stacked over time.
+"""
+
+
+def build(spec: FilterSpec, module: str | None = None) -> Filter:
+    """The public ``step`` and ``run`` of the filter ``spec`` describes (module docstring)."""
+    step_traces = [0]
+    run_traces = [0]
+
+    def counted(counter: list[int]) -> Callable[..., tuple[Any, Any]]:
+        def kernel(*args: Any) -> tuple[Any, Any]:
+            counter[0] += 1  # runs when JAX traces, not when the compiled program runs
+            return spec.kernel(*args)
+
+        return kernel
+
+    step_kernel = counted(step_traces)
+    run_kernel = counted(run_traces)
+
+    def run_pure(key: Any, state: Any, config: Any, params: Any, *inputs: Any) -> tuple[Any, Any]:
+        return scan(run_kernel, key, state, config, params, *inputs, unroll=spec.unroll(config))
+
+    step_jit = jax.jit(step_kernel, static_argnums=(2,), donate_argnums=(1,) if spec.donate_step else ())
+    run_jit = jax.jit(run_pure, static_argnums=(2,))
+    run_jit_donated = jax.jit(run_pure, static_argnums=(2,), donate_argnums=(1,))
+    check_params = _ParamsMemo(spec.check_params)
+    head = ("key", "state", "config", "params")
+    step_signature = _signature(head, spec.inputs)
+    run_signature = _signature(head, spec.run_inputs, [("donate_state", False)])
+
+    def checked(key: Any, state: Any, config: Any, params: Any, inputs: tuple, time_axis: bool) -> tuple:
+        if not isinstance(config, spec.config_type):
+            raise ValueError(f"config must be {_article(spec.config_type.__name__)}, got {type(config).__name__}")
+        check_key(key, allow_none=spec.deterministic)
+        check_params(config, params)
+        spec.check_state(config, params, state)
+        spec.check_inputs(config, params, *inputs, time_axis=time_axis)
+        return spec.prepare(config, *inputs)
+
+    num_args = len(head) + len(spec.inputs)
+
+    def step(*args: Any, **kwargs: Any) -> tuple[Any, Any]:
+        if kwargs or len(args) != num_args:  # keywords or a wrong count: Python's own binding and errors
+            args = step_signature.bind(*args, **kwargs).args
+        key, state, config, params, *inputs = args
+        inputs = checked(key, state, config, params, tuple(inputs), time_axis=False)
+        return step_jit(key, state, config, params, *inputs)
+
+    def run(*args: Any, donate_state: bool = False, **kwargs: Any) -> tuple[Any, Any]:
+        if kwargs or len(args) != num_args:
+            args = run_signature.bind(*args, donate_state=donate_state, **kwargs).args
+        key, state, config, params, *inputs = args
+        inputs = checked(key, state, config, params, tuple(inputs), time_axis=True)
+        jitted = run_jit_donated if donate_state else run_jit
+        return jitted(key, state, config, params, *inputs)
+
+    for fn, signature, doc, notes, jitted, counter in (
+        (
+            step,
+            step_signature,
+            spec.step_doc,
+            _STEP_NOTE + (_DONATED_NOTE if spec.donate_step else ""),
+            step_jit,
+            step_traces,
+        ),
+        (run, run_signature, spec.run_doc, _RUN_NOTE, run_jit, run_traces),
+    ):
+        fn.__signature__ = signature  # type: ignore[attr-defined]
+        fn.__qualname__ = fn.__name__
+        fn.__doc__ = (inspect.cleandoc(doc) + "\n" if doc else "") + notes
+        fn.__module__ = module or fn.__module__
+        fn.jitted = jitted  # type: ignore[attr-defined]
+        fn.trace_count = lambda c=counter: c[0]  # type: ignore[attr-defined]
+    run.jitted_donated = run_jit_donated  # type: ignore[attr-defined]
+    return Filter(step, run)

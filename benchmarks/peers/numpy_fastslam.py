@@ -31,7 +31,7 @@ also computes is not part of W3 and is not computed here.
 
 Every part of a step is a method (:meth:`NumpyFastSLAM.move`, :meth:`update`,
 :meth:`normalise`, :meth:`indices`, :meth:`resample`) so that
-``tests/test_benchmark_w3.py`` can compare each with jaxnav given the same
+``tests/benchmarks/test_benchmark_w3.py`` can compare each with jaxnav given the same
 particles, observations and resampling uniform.
 """
 

@@ -54,7 +54,7 @@ Written to be a fair, fast NumPy peer, not a straw man:
   the clip is an identity it can skip).
 
 The arithmetic is float32 (jaxnav's dtype); the per-read constants are
-computed in float64 and rounded once. ``tests/test_bench_uhf.py`` checks
+computed in float64 and rounded once. ``tests/benchmarks/test_bench_uhf.py`` checks
 that :func:`log_likelihoods` equals ``rfid_tag.log_likelihoods`` on the same
 particles and reads (float64: to 1e-9; float32: to ``5e-3 + 2e-5·|ℓ|``), and
 that a full step equals the jitted body of ``rfid_tag.step`` given the same

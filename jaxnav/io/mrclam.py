@@ -49,7 +49,7 @@ an error that vanishes unless the reading changes inside the step and is at
 most ``v_max·Δt·(ω_max − ω_min)·Δt/4 + (v_max − v_min)·|ω̄|·Δt²`` there
 (≈ 30 µm for this data). Against an independent mid-point integration on the
 odometry clock, robot 1's dead-reckoned position agrees to 0.12 mm after 60 s
-and 0.07 mm after 300 s (float64; tests/test_mrclam.py).
+and 0.07 mm after 300 s (float64; tests/io/test_mrclam.py).
 
 *Measurements.* A measurement at time ``t_m`` goes to the step whose end time
 is nearest: ``i = ⌊(t_m − t₀)/Δt + ½⌋ − 1`` (ties go to the later step). So it

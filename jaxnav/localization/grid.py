@@ -442,7 +442,7 @@ def _pair_log_density(config: GridConfig, params: GridParams, positions: jax.Arr
     ``nx·ny`` positions (heading 0) and the bearing residual of heading ``θ`` is
     ``wrap(φ_z − α + θ)`` — ``nθ`` times fewer ``atan2``/``sqrt`` than
     evaluating :func:`~jaxnav.models.landmarks.log_likelihood` at every cell,
-    with the same value (``tests/test_grid.py`` checks it). The scoring is
+    with the same value (``tests/localization/test_grid.py`` checks it). The scoring is
     that of ``log_likelihood``: Gaussian in range and wrapped bearing,
     normalised densities.
     """

@@ -90,7 +90,7 @@ simulated receiver's level noise is 0.01–0.05 V
 (:mod:`jaxnav.sim.ir_receiver`), its physical model differs from eq. 5.3 by
 up to 0.085 V at 1.2 m, and a height change of ±0.1 m ([W] Table 5.3) moves
 the level under an emitter by ∓0.2 V. The default is **0.2 V**: on the
-60 s experiment drive of ``tests/test_ir_mcl.py`` (6 seeds) σ = 0.1 V gives
+60 s experiment drive of ``tests/localization/test_ir_mcl.py`` (6 seeds) σ = 0.1 V gives
 10 mm late error at 1.2 m but diverges in most runs at 1.3 m, σ = 0.2 V
 gives 13 mm at 1.2 m and ~30 mm at 1.1 and 1.3 m (Table 5.3's shape),
 σ = 0.3 V 16 mm at 1.2 m. A σ below the model error makes the filter

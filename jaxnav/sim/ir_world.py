@@ -23,7 +23,7 @@ The data of the IR experiments of [W] §5.4 in simulation:
    figures; the defaults were chosen so that dead reckoning from the known
    start pose drifts by about [W]'s "odometry only" error (108 mm mean over
    the 70 spots of Table 5.2) over one 60 s lap (measured in
-   ``tests/test_ir_mcl.py``).
+   ``tests/localization/test_ir_mcl.py``).
 3. **Detections**: at every step, one receiver window per receiver at the
    true pose, through the physical receiver simulator and its FFT decoder,
    :func:`jaxnav.sim.ir_receiver.detect` (called inside the ``lax.scan``),

@@ -33,7 +33,7 @@ def _errors(estimate, truth):
 def test_ekf_mcl_and_grid_agree_on_a_unimodal_problem(getkey):
     """From a known start with all landmarks in view the three beliefs are unimodal and agree:
     MCL (2000 particles) within 5 cm of the EKF on average, the grid within one cell (0.25 m;
-    its estimate is quantised to cell centres, RMS ≈ 0.41 cell, see tests/test_grid.py)."""
+    its estimate is quantised to cell centres, RMS ≈ 0.41 cell, see tests/localization/test_grid.py)."""
     u = trajectories.loop_controls(60, 0.3, 0.1, 0.25)
     sim = lw.simulate(getkey(), LANDMARKS, START, u, NOISE, SENSOR)
     p = ekf.KalmanParams(NOISE, SENSOR, LANDMARKS)

@@ -24,7 +24,7 @@ DARK = 5  # the sensor reports nothing during the first DARK steps
 STEPS = 60
 # A sensor 3x noisier than the demo's, in the simulator and the filter alike: with the
 # demo's (0.1 m, 0.05 rad) the first posterior is ~1/10,000 of the room's pose volume and
-# global localization needs ~20,000 particles (tests/test_mcl.py), not a few thousand.
+# global localization needs ~20,000 particles (tests/localization/test_mcl.py), not a few thousand.
 SENSOR = lm.RangeBearingNoise(jnp.asarray([0.3, 0.15]))
 
 
@@ -64,7 +64,7 @@ def test_global_localization_count_adapts_and_estimate_converges(seed):
     asks for more than N_max (the candidates fill ~1,850 of the 57,600 bins), so n_t = N_max;
     once converged the posterior spans a few 0.25 m × 0.25 m × 10° bins (k ≤ ~10, so
     n_χ ≤ ~220) and n_t ≤ 0.1·N_max. Error bound 0.2 m over the last 20 steps: the
-    acceptance bound of converged landmark MCL in this world (tests/test_mcl.py); over
+    acceptance bound of converged landmark MCL in this world (tests/localization/test_mcl.py); over
     seeds 0–4 the measured maximum was 0.15 m and the largest converged count 186."""
     r = _global_run(seed)
     trace, truth = r["trace"], r["truth"]

@@ -22,7 +22,7 @@ Tolerances:
 * float64: the same arithmetic in a different association order (closed-form
   2 × 2 inverse in NumPy, Cholesky solves in jaxnav), so agreement is at
   rounding level; 1e-9 (relative to means ~10 m, covariances ~1e-2 m²,
-  log-weights ~10) is ≈ 1e5 ulp, the bound ``tests/test_benchmark_w4.py``
+  log-weights ~10) is ≈ 1e5 ulp, the bound ``tests/benchmarks/test_benchmark_w4.py``
   uses for the same kind of comparison.
 * float32 (what the benchmark times): agreement to a few ulp of the
   largest magnitudes involved, with a margin of ~10: log-weights 2e-4

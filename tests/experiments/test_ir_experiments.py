@@ -24,7 +24,7 @@ from jaxnav.sim import ir_world
 
 RUNS = 2
 NAMES = ("table-5.2", "table-5.3", "ir-failure", "ir-speeds", "ir-rotation", "ir-installation")
-FULL = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "experiments"
+FULL = pathlib.Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "experiments"
 
 
 # ---------------------------------------------------------------------------

@@ -91,7 +91,7 @@ def test_kidnapped_robot_recovers_with_injection_and_plain_mcl_does_not(seed):
     default alphas (0.02, 0.2).
 
     Bound 0.2 m: the acceptance bound of converged landmark MCL in this world
-    (tests/test_mcl.py, the demo); before the kidnap both filters track at
+    (tests/localization/test_mcl.py, the demo); before the kidnap both filters track at
     < 0.13 m, and a lost filter is off by about the kidnap distance, 3.5 m.
     Horizon 30 steps (7.5 s): over seeds 0–7 recovery took 2–23 steps and the
     error in the window stayed below 0.18 m. Plain MCL can only creep back by

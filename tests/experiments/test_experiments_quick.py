@@ -30,7 +30,7 @@ from jaxnav.experiments import registry
 from jaxnav.experiments.hf_slam import ERROR_COLUMNS
 
 RUNS = 4
-FULL = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "experiments"
+FULL = pathlib.Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "experiments"
 NAMES = ("table-3.1", "fig-3.7", "table-4.1", "fig-4.4", "table-3.2", "table-4.2", "fig-3.5", "kidnapping")
 
 

@@ -12,14 +12,14 @@ Tolerances:
 * float64, jaxnav / NumPy: the same algorithm in a different
   association order, so agreement is at rounding level; 1e-9 (relative to
   the size of the means, ~10 m, and of the log-likelihoods, ~10) is
-  ≈ 1e5 ulp, the bound ``tests/test_kalman.py`` uses for the same model.
+  ≈ 1e5 ulp, the bound ``tests/core/test_kalman.py`` uses for the same model.
 * float64, dynamax: its ``psd_solve`` adds ``diagonal_boost = 1e-9`` to
   ``S`` before solving, a relative perturbation ≤ 1e-9 / λmin(S) = 1e-9 /
   0.04 = 2.5e-8 of the gain per step (λmin(S) ≥ λmin(R) = 0.2² m²); the
   bounds 1e-6 m (means) and 1e-5 (log-likelihood, a sum over 40 steps)
   leave a factor ≥ 10 over that.
 * float32 (what the benchmark times): 1e-4 relative, as in
-  ``tests/test_kalman.py`` for the float32 Kalman filters on this model.
+  ``tests/core/test_kalman.py`` for the float32 Kalman filters on this model.
 
 A negative control shows the comparison can fail: the NumPy filter with
 R scaled by 1.1 disagrees with the reference far beyond these tolerances.

@@ -8,12 +8,12 @@ import sys
 from jaxnav._version import __version__
 
 # the help text lists these without importing the experiment; tests/test_cli.py checks they match
-_MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
-_HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
-_HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
-_IR_LAYOUTS = ("proposed", "unique-11")
-_IR_DRIVES = ("spots", "loop", "rotation")
-_UHF_WEIGHTINGS = ("combined", "rssi", "phase")
+MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
+HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
+HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
+IR_LAYOUTS = ("proposed", "unique-11")
+IR_DRIVES = ("spots", "loop", "rotation")
+UHF_WEIGHTINGS = ("combined", "rssi", "phase")
 
 
 def _write_plot(draw, path: str) -> None:
@@ -275,8 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--robots", default="1,2,3", help="comma-separated robots (default 1,2,3)")
     mr.add_argument(
         "--algorithms",
-        default=",".join(_MRCLAM_ALGORITHMS),
-        help=f"comma-separated subset of {','.join(_MRCLAM_ALGORITHMS)} (default all)",
+        default=",".join(MRCLAM_ALGORITHMS),
+        help=f"comma-separated subset of {','.join(MRCLAM_ALGORITHMS)} (default all)",
     )
     mr.add_argument(
         "--duration", type=float, default=None, help="seconds from the start of each log (default: all 900 s)"
@@ -288,14 +288,12 @@ def build_parser() -> argparse.ArgumentParser:
     hf = sub.add_parser(
         "hf-slam", help="run PF-SLAM, PS-SLAM or FastSLAM on a simulated HF-RFID tag carpet ([W] ch. 3-4)"
     )
-    hf.add_argument("--method", choices=_HF_METHODS, default="pf_slam", help="SLAM method (default pf_slam)")
+    hf.add_argument("--method", choices=HF_METHODS, default="pf_slam", help="SLAM method (default pf_slam)")
     hf.add_argument("--density", type=float, default=16.0, help="tags per m² (100, 16 or 4 in [W]; default 16)")
     hf.add_argument(
         "--reader-mm", type=float, default=60.0, help="reader footprint side in mm (60 in [W] ch. 3, 100-500 in ch. 4)"
     )
-    hf.add_argument(
-        "--trajectory", choices=_HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)"
-    )
+    hf.add_argument("--trajectory", choices=HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)")
     hf.add_argument("--laps", type=int, default=3, help="laps of the rectangle (after the kidnapping for 'kidnapping')")
     hf.add_argument("--steps", type=int, default=2000, help="steps of 0.1 s of the random trajectory (default 2000)")
     hf.add_argument("--robot-particles", type=int, default=500, help="robot particles I (default 500, as [W])")
@@ -309,13 +307,13 @@ def build_parser() -> argparse.ArgumentParser:
     irp = sub.add_parser("ir", help="localise with IR ceiling emitters on one simulated drive ([W] ch. 5)")
     irp.add_argument(
         "--layout",
-        choices=_IR_LAYOUTS,
+        choices=IR_LAYOUTS,
         default="proposed",
         help="proposed (3 unique + 8 repeated IDs) or unique-11 (default proposed)",
     )
     irp.add_argument(
         "--drive",
-        choices=_IR_DRIVES,
+        choices=IR_DRIVES,
         default="loop",
         help="loop (laps of the predetermined trajectory), spots (the 70 marked spots) or rotation",
     )
@@ -337,8 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ur.add_argument(
         "--weightings",
-        default=",".join(_UHF_WEIGHTINGS),
-        help=f"comma-separated subset of {','.join(_UHF_WEIGHTINGS)} (default all)",
+        default=",".join(UHF_WEIGHTINGS),
+        help=f"comma-separated subset of {','.join(UHF_WEIGHTINGS)} (default all)",
     )
     ur.add_argument("--particles", type=int, default=5000, help="particles (default 5000)")
     ur.add_argument(

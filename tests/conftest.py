@@ -61,16 +61,30 @@ def pytest_unconfigure(config):
         shutil.rmtree(_made_cache_dir, ignore_errors=True)
 
 
+def seed_id(nodeid: str) -> str:
+    """``tests/<dir>/test_x.py::name`` → ``tests/test_x.py::name``: the id the keys are seeded from."""
+    path, sep, rest = nodeid.partition("::")
+    return "tests/" + os.path.basename(path) + sep + rest
+
+
+@pytest.fixture
+def test_seed(request) -> int:
+    """A per-test seed: the CRC-32 of :func:`seed_id` of the test's node id."""
+    return zlib.crc32(seed_id(request.node.nodeid).encode())
+
+
 @pytest.fixture
 def getkey(request):
     """A factory of fresh PRNG keys: every call returns a new, independent key.
 
     The keys are reproducible: the stream is seeded from the test's node id
-    (stable across runs and independent of test order), and the ``i``-th call
-    returns ``fold_in(base, i)``. Raw ``uint32[2]`` keys (``PRNGKey``) are used
-    so the keys work with every jax.random API and with NumPy conversion.
+    (stable across runs and independent of test order) with the test file's
+    directory left out (:func:`seed_id`), so moving a test file between the
+    directories of ``tests/`` keeps its keys; the ``i``-th call returns
+    ``fold_in(base, i)``. Raw ``uint32[2]`` keys (``PRNGKey``) are used so the
+    keys work with every jax.random API and with NumPy conversion.
     """
-    base = jax.random.PRNGKey(zlib.crc32(request.node.nodeid.encode()))
+    base = jax.random.PRNGKey(zlib.crc32(seed_id(request.node.nodeid).encode()))
     counter = itertools.count()
 
     def _getkey() -> jax.Array:

@@ -42,24 +42,24 @@ def test_demo_rejects_bad_arguments(tmp_path):
 
 
 def test_mrclam_algorithm_list_matches_the_experiment():
-    from jaxnav.cli import _MRCLAM_ALGORITHMS
+    from jaxnav.cli import MRCLAM_ALGORITHMS
     from jaxnav.experiments.mrclam import ALGORITHMS
 
-    assert _MRCLAM_ALGORITHMS == ALGORITHMS
+    assert MRCLAM_ALGORITHMS == ALGORITHMS
 
 
 def test_hf_slam_choices_match_the_experiment():
-    from jaxnav.cli import _HF_METHODS, _HF_TRAJECTORIES
+    from jaxnav.cli import HF_METHODS, HF_TRAJECTORIES
     from jaxnav.experiments.hf_slam import METHODS, TRAJECTORIES
 
-    assert _HF_METHODS == METHODS and _HF_TRAJECTORIES == TRAJECTORIES
+    assert HF_METHODS == METHODS and HF_TRAJECTORIES == TRAJECTORIES
 
 
 def test_ir_choices_match_the_experiment():
-    from jaxnav.cli import _IR_DRIVES, _IR_LAYOUTS
+    from jaxnav.cli import IR_DRIVES, IR_LAYOUTS
     from jaxnav.experiments.ir.positioning import DRIVES, LAYOUTS
 
-    assert _IR_LAYOUTS == LAYOUTS and _IR_DRIVES == DRIVES
+    assert IR_LAYOUTS == LAYOUTS and IR_DRIVES == DRIVES
 
 
 def test_ir_runs_a_drive_and_writes_png(tmp_path):
@@ -97,10 +97,10 @@ def test_experiments_list_names_the_ir_experiments(tmp_path):
 
 
 def test_uhf_real_weightings_match_the_filter():
-    from jaxnav.cli import _UHF_WEIGHTINGS
+    from jaxnav.cli import UHF_WEIGHTINGS
     from jaxnav.localization.rfid_tag import WEIGHTINGS
 
-    assert _UHF_WEIGHTINGS == WEIGHTINGS
+    assert UHF_WEIGHTINGS == WEIGHTINGS
 
 
 @pytest.fixture

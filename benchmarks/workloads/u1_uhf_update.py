@@ -540,7 +540,7 @@ def profile(sizes=(10**4, 10**6), rounds: int = 3) -> list[dict]:
             "jaxnav antenna gain alone": (
                 jax.jit(
                     lambda p: jnp.sum(
-                        U._gain_nocheck(
+                        U.antenna_gain(
                             p[:, None, :3] - r.reader[None, :, :3], r.reader[None, :, 3], params.channel.antenna, None
                         ),
                         -1,

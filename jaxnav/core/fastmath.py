@@ -26,7 +26,17 @@ import math
 import jax
 import jax.numpy as jnp
 
-__all__ = ["sincos", "sin", "cos", "atan2", "int_cumsum", "INT_SCAN_BLOCK", "matmul", "small_sum"]
+__all__ = [
+    "sincos",
+    "sin",
+    "cos",
+    "atan2",
+    "int_cumsum",
+    "INT_SCAN_BLOCK",
+    "matmul",
+    "small_sum",
+    "blocked_int_cumsum",
+]
 
 # Cody–Waite split of π/2: PIO2_1 has 8 significant bits, so k·PIO2_1 is exact for |k| < 2^16.
 _PIO2_1 = 1.5703125
@@ -141,7 +151,7 @@ def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
         raise TypeError(f"int_cumsum takes a 1-D int32 or uint32 array, got {x.dtype}{list(x.shape)}")
     if x.shape[0] <= INT_SCAN_BLOCK:
         return jnp.cumsum(x, dtype=x.dtype)
-    cpu = _blocked_int_cumsum_added if single_reader else _blocked_int_cumsum
+    cpu = _blocked_int_cumsum_added if single_reader else blocked_int_cumsum
     return jax.lax.platform_dependent(x, cpu=cpu, default=lambda v: jnp.cumsum(v, dtype=v.dtype))
 
 
@@ -149,7 +159,7 @@ def _rows_and_offsets(x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``x`` as rows of :data:`INT_SCAN_BLOCK` and each row's exclusive offset (the sums of the rows before)."""
     rows = jnp.pad(x, (0, (-x.shape[0]) % INT_SCAN_BLOCK)).reshape(-1, INT_SCAN_BLOCK)
     totals = jnp.sum(rows, axis=1, dtype=x.dtype)
-    return rows, _blocked_int_cumsum(totals) - totals
+    return rows, blocked_int_cumsum(totals) - totals
 
 
 def _blocked_int_cumsum_added(x: jax.Array) -> jax.Array:
@@ -161,7 +171,8 @@ def _blocked_int_cumsum_added(x: jax.Array) -> jax.Array:
     return (jnp.dot(rows, upper, preferred_element_type=x.dtype) + offsets[:, None]).reshape(-1)[:n]
 
 
-def _blocked_int_cumsum(x: jax.Array) -> jax.Array:
+def blocked_int_cumsum(x: jax.Array) -> jax.Array:
+    """The XLA:CPU path of :func:`int_cumsum`: rows of :data:`INT_SCAN_BLOCK` summed by one integer product each."""
     n, block = x.shape[0], INT_SCAN_BLOCK
     if n <= block:
         return jnp.cumsum(x, dtype=x.dtype)

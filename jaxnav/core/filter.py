@@ -79,7 +79,7 @@ class FilterSpec:
     """A filter's pure parts, from which :func:`build` makes its ``step`` and ``run``.
 
     Attributes:
-        name: the filter's name in messages (e.g. ``"MCL"``).
+        name: the filter's name, for the generated docstrings (e.g. ``"MCL"``).
         kernel: ``(key, state, config, params, *inputs) -> (state, info)``, pure and traceable.
         config_type: the configuration's class; anything else is refused.
         inputs: the names of the per-step inputs, in order (e.g. ``("control", "observation")``);
@@ -341,7 +341,7 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
     ):
         fn.__signature__ = signature  # type: ignore[attr-defined]
         fn.__qualname__ = fn.__name__
-        fn.__doc__ = (inspect.cleandoc(doc) + "\n" if doc else "") + notes
+        fn.__doc__ = (inspect.cleandoc(doc) if doc else f"{fn.__name__} of {spec.name}.") + "\n" + notes
         fn.__module__ = module or fn.__module__
         fn.jitted = jitted  # type: ignore[attr-defined]
         fn.trace_count = lambda c=counter: c[0]  # type: ignore[attr-defined]

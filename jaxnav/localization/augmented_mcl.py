@@ -97,6 +97,7 @@ __all__ = [
     "kernel",
     "step",
     "run",
+    "update_average",
 ]
 
 _ANGLE_DIMS = (2,)
@@ -271,7 +272,7 @@ def init_uniform(
 # step and run
 
 
-def _update_average(log_w: jax.Array, log_w_avg: jax.Array, alpha: float) -> jax.Array:
+def update_average(log_w: jax.Array, log_w_avg: jax.Array, alpha: float) -> jax.Array:
     """``log((1 − α)·w + α·w_avg)`` (Tab. 8.3 lines 8–9) without leaving the log domain."""
     log_keep = np.log1p(-alpha) if alpha < 1.0 else -np.inf
     return jnp.logaddexp(log_keep + log_w, np.log(alpha) + log_w_avg)
@@ -302,8 +303,8 @@ def kernel(
     ess = weights.step_ess(probs, w.norm.degenerate)
 
     log_w_avg = w.norm.log_norm
-    log_w_slow = _update_average(state.log_w_slow, log_w_avg, config.alpha_slow).astype(dtype)
-    log_w_fast = _update_average(state.log_w_fast, log_w_avg, config.alpha_fast).astype(dtype)
+    log_w_slow = update_average(state.log_w_slow, log_w_avg, config.alpha_slow).astype(dtype)
+    log_w_fast = update_average(state.log_w_fast, log_w_avg, config.alpha_fast).astype(dtype)
     p_inject = injection_probability(log_w_slow, log_w_fast)
 
     n = config.num_particles

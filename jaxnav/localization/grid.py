@@ -142,6 +142,8 @@ __all__ = [
     "kernel",
     "step",
     "run",
+    "cic_1d",
+    "cell_log_likelihood",
 ]
 
 ASSOCIATIONS = ("known", "unknown")
@@ -296,7 +298,7 @@ def _unit_loss(z: jax.Array) -> jax.Array:
     return jnp.maximum(phi - z * q, 0.0)
 
 
-def _cic_1d(offsets: jax.Array, mean: jax.Array, var: jax.Array) -> jax.Array:
+def cic_1d(offsets: jax.Array, mean: jax.Array, var: jax.Array) -> jax.Array:
     """``E[tri(D − m)]`` for ``D ~ N(mean, var)`` at integer ``offsets`` m (all in cell units).
 
     The cloud-in-cell mass that a unit mass at offset 0, moved by ``D``, puts at
@@ -320,13 +322,13 @@ def _row_conditional(offsets, r_out, v_out, r_in, v_in, cov):
     the conditional variance ``v_in − β·cov``: the kernel's covariance is then
     ``[[V_out, cov], [cov, v_in + spread_in]]``, the Gaussian's plus the tent spread.
     """
-    k_out = _cic_1d(offsets, r_out, v_out)
+    k_out = cic_1d(offsets, r_out, v_out)
     mass = jnp.sum(k_out)
     v_spread = jnp.sum(k_out * (offsets - r_out) ** 2) / jnp.maximum(mass, 1e-30)
     beta = cov / jnp.maximum(v_spread, _TINY_VAR)
     v_cond = jnp.maximum(v_in - beta * cov, 0.0)
     mu_rows = r_in + beta * (offsets - r_out)
-    k_in = _cic_1d(offsets[None, :], mu_rows[:, None], v_cond)
+    k_in = cic_1d(offsets[None, :], mu_rows[:, None], v_cond)
     return k_out[:, None] * k_in
 
 
@@ -363,7 +365,7 @@ def _heading_kernel(config: GridConfig, dth: jax.Array, var: jax.Array) -> jax.A
     mu = weights.wrap_angle(dth) / step  # in [-n/2, n/2)
     v = var / (step * step)
     windings = jnp.arange(-2, 3, dtype=dth.dtype)[:, None] * n  # ±2 turns: σ up to ~n/2 bins
-    folded = jnp.sum(_cic_1d(jnp.arange(n, dtype=dth.dtype) + windings, mu, v), axis=0)
+    folded = jnp.sum(cic_1d(jnp.arange(n, dtype=dth.dtype) + windings, mu, v), axis=0)
     return folded / jnp.maximum(jnp.sum(folded), 1e-30)
 
 
@@ -459,7 +461,7 @@ def _pair_log_density(config: GridConfig, params: GridParams, positions: jax.Arr
     return range_term[:, :, None, :] - 0.5 * (resid_b / sd[1]) ** 2
 
 
-def _log_likelihood(config: GridConfig, params: GridParams, obs: lm.RangeBearingObs):
+def cell_log_likelihood(config: GridConfig, params: GridParams, obs: lm.RangeBearingObs) -> tuple[jax.Array, jax.Array]:
     """``log f_landmark(m, x_k, z_t)`` at every cell ``[nx, ny, nθ]`` and the number of ignored slots."""
     if config.association == "known":
         positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
@@ -562,11 +564,11 @@ def _gaussian_prior(config: GridConfig, pose: jax.Array, sd: jax.Array) -> jax.A
     ux = (pose[0] - x0) / dx - 0.5  # continuous cell coordinate: centre i ↔ i
     uy = (pose[1] - y0) / dy - 0.5
     ut = (weights.wrap_angle(pose[2]) + jnp.pi) / dth - 0.5
-    px = _cic_1d(jnp.arange(config.nx, dtype=dt), ux, (sd[0] / dx) ** 2)
-    py = _cic_1d(jnp.arange(config.ny, dtype=dt), uy, (sd[1] / dy) ** 2)
+    px = cic_1d(jnp.arange(config.nx, dtype=dt), ux, (sd[0] / dx) ** 2)
+    py = cic_1d(jnp.arange(config.ny, dtype=dt), uy, (sd[1] / dy) ** 2)
     n = config.ntheta
     windings = jnp.arange(-2, 3, dtype=dt)[:, None] * n
-    pt = jnp.sum(_cic_1d(jnp.arange(n, dtype=dt) + windings, ut, (sd[2] / dth) ** 2), axis=0)
+    pt = jnp.sum(cic_1d(jnp.arange(n, dtype=dt) + windings, ut, (sd[2] / dth) ** 2), axis=0)
 
     def log0(v):
         return jnp.where(v > 0, jnp.log(jnp.where(v > 0, v, 1.0)), -jnp.inf)
@@ -592,7 +594,7 @@ def kernel(
     log_pred, mass_lost, trunc = _predict(config, params, state.log_belief, control)
     pred = weights.normalize(log_pred.ravel())  # uniform if every cell left the grid (mass_lost == 1)
 
-    loglik, num_ignored = _log_likelihood(config, params, obs)
+    loglik, num_ignored = cell_log_likelihood(config, params, obs)
     post = weights.normalize(pred.log_weights + loglik.ravel())
     log_post = jnp.where(post.degenerate, pred.log_weights, post.log_weights)
     probs = jnp.exp(log_post).reshape(config.shape)

@@ -115,6 +115,8 @@ __all__ = [
     "kernel",
     "step",
     "run",
+    "choose_count",
+    "occupied_bins_per_prefix",
 ]
 
 _ANGLE_DIMS = (2,)
@@ -237,7 +239,7 @@ def kld_bound(k: jax.Array, epsilon: float | jax.Array, delta: float | jax.Array
     return jnp.where(k > 1, n, jnp.zeros_like(n))
 
 
-def _occupied_bins_per_prefix(poses: jax.Array, bin_size: tuple[float, float, float]) -> jax.Array:
+def occupied_bins_per_prefix(poses: jax.Array, bin_size: tuple[float, float, float]) -> jax.Array:
     """``k[m]`` = number of distinct histogram bins among ``poses[0..m]``, for every ``m``.
 
     A stable lexicographic sort of the integer bin triples puts equal bins
@@ -260,7 +262,7 @@ def _occupied_bins_per_prefix(poses: jax.Array, bin_size: tuple[float, float, fl
     return jnp.cumsum(first)
 
 
-def _choose_count(k_prefix: jax.Array, config: KLDMCLConfig, dtype) -> jax.Array:
+def choose_count(k_prefix: jax.Array, config: KLDMCLConfig, dtype: Any) -> jax.Array:
     """Fox's stopping rule on the prefix sequence: the first ``m`` with ``m ≥ n_χ(k(m))`` and ``m ≥ n_min``."""
     n_max = config.max_particles
     m = jnp.arange(1, n_max + 1)
@@ -364,8 +366,8 @@ def kernel(
     # (the exact inverse CDF of unsorted uniforms; masked slots have weight zero and are never drawn).
     u = jax.random.uniform(k_cand, (n_max,), dtype)
     cand_idx = resampling.inverse_cdf(u, probs)
-    k_prefix = _occupied_bins_per_prefix(jnp.take(particles, cand_idx, axis=0), config.bin_size)
-    n_new = _choose_count(k_prefix, config, dtype)
+    k_prefix = occupied_bins_per_prefix(jnp.take(particles, cand_idx, axis=0), config.bin_size)
+    n_new = choose_count(k_prefix, config, dtype)
     num_bins = jnp.take(k_prefix, n_new - 1)
 
     # Systematic resampling of n_new particles into slots 0..n_new-1.

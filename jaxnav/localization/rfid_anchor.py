@@ -73,6 +73,7 @@ from jaxnav.core.validation import (
     is_concrete,
 )
 from jaxnav.localization.rfid_tag import WEIGHTINGS
+from jaxnav.models import motion
 from jaxnav.models import uhf_rfid as U
 
 __all__ = [
@@ -88,7 +89,8 @@ __all__ = [
     "run",
 ]
 
-FRAMES = ("world", "body")
+FRAMES = motion.INCREMENT_FRAMES
+"""Frames of the odometry increment (:data:`jaxnav.models.motion.INCREMENT_FRAMES`)."""
 
 
 class AnchorReads(NamedTuple):
@@ -269,22 +271,9 @@ def kernel(
     g = d - 4
     k_move, k_off, k_res = jax.random.split(key, 3)
     p = state.particles
-    dxy = control[:2]
-    if config.odometry_frame == "body":
-        c, s = jnp.cos(p[:, 3]), jnp.sin(p[:, 3])
-        dxy = jnp.stack([c * control[0] - s * control[1], s * control[0] + c * control[1]], axis=-1)
-    else:
-        dxy = jnp.broadcast_to(dxy, (m, 2))
-    noise = jax.random.normal(k_move, (m, 4), p.dtype) * params.odometry_sd
-    moved = jnp.concatenate(
-        [
-            p[:, :2] + dxy + noise[:, :2],
-            p[:, 2:3] + control[2] + noise[:, 2:3],
-            weights.wrap_angle(p[:, 3:4] + control[3] + noise[:, 3:4]),
-            weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype)),
-        ],
-        axis=-1,
-    )
+    pose = motion.increment_sample(k_move, p[:, :4], control, params.odometry_sd, config.odometry_frame)
+    offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))
+    moved = jnp.concatenate([pose, offsets], axis=-1)
     ll = U.read_log_likelihood(
         moved[:, None, :4],
         params.anchors[None, :, :],

@@ -28,6 +28,10 @@ model               control ``u``                               reference
 ``omni_body``       ``(v_x, v_y, ω, Δt)``, robot frame            [W] eq. 3.6, rotated
 ==================  ==========================================  ====================
 
+Robots localised in 3-D, with poses ``(x, y, z, φ)``, move by an odometry increment
+``dX = (dx, dy, dz, dφ)`` plus Gaussian noise ([A] App. F Alg. 8): :func:`increment_sample`
+and :func:`increment_mean`.
+
 Noise parameters are NamedTuple pytrees (differentiable, vmappable). The
 ``alphas`` follow Thrun et al.: each is a coefficient of a *variance*
 (``Var[v̂ − v] = α₁v² + α₂ω²``). ``pose_sd`` adds independent Gaussian noise
@@ -61,6 +65,9 @@ __all__ = [
     "omni_sample",
     "omni_body_mean",
     "omni_body_sample",
+    "INCREMENT_FRAMES",
+    "increment_mean",
+    "increment_sample",
     "velocity_process_cov",
     "odometry_process_cov",
     "omni_process_cov",
@@ -280,6 +287,53 @@ def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, param
     eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
     new = poses + _body_to_world(poses, control[..., :3] + eps) * dt
     return _wrap_heading(new)
+
+
+# ---------------------------------------------------------------------------
+# pose increments in 3-D: (x, y, z, φ) moved by an odometry increment ([A] App. F Alg. 8)
+
+
+INCREMENT_FRAMES = ("world", "body")
+"""Frames of :func:`increment_sample`'s ``(dx, dy)``: as given ([A]'s ``X + dX``), or in the robot frame."""
+
+
+def increment_mean(poses: jax.Array, increment: jax.Array, frame: str = "world") -> jax.Array:
+    """``X_t = X_{t−1} + dX_t`` for poses ``[N, 4] = (x, y, z, φ)`` (m, m, m, rad) and ``dX [4]``.
+
+    With ``frame="body"`` the planar part ``(dx, dy)`` is measured in the robot frame and rotated by
+    each pose's yaw φ_{t−1}; ``dz`` and ``dφ`` are added as they are. φ is wrapped to ``[−π, π)``.
+    """
+    return _increment(poses, increment, jnp.zeros_like(poses), frame)
+
+
+def increment_sample(
+    key: jax.Array, poses: jax.Array, increment: jax.Array, sd: jax.Array, frame: str = "world"
+) -> jax.Array:
+    """[A] Alg. 8 line 13: ``X_t ~ N(X_{t−1} + dX_t, diag(sd²))`` for poses ``[N, 4] = (x, y, z, φ)``.
+
+    ``sd [4]`` (m, m, m, rad per step) is the noise of the move; ``frame`` as :func:`increment_mean`
+    (the noise is added in the world frame either way).
+    """
+    noise = jax.random.normal(key, poses.shape, poses.dtype) * sd
+    return _increment(poses, increment, noise, frame)
+
+
+def _increment(poses: jax.Array, increment: jax.Array, noise: jax.Array, frame: str) -> jax.Array:
+    if frame not in INCREMENT_FRAMES:
+        raise ValueError(f"frame must be one of {INCREMENT_FRAMES}, got {frame!r}")
+    if frame == "body":
+        c, s = jnp.cos(poses[:, 3]), jnp.sin(poses[:, 3])
+        dxy = jnp.stack([c * increment[0] - s * increment[1], s * increment[0] + c * increment[1]], axis=-1)
+    else:
+        dxy = jnp.broadcast_to(increment[:2], (poses.shape[0], 2))
+    return jnp.concatenate(
+        [
+            poses[:, :2] + dxy + noise[:, :2],
+            poses[:, 2:3] + increment[2] + noise[:, 2:3],
+            wrap_angle(poses[:, 3:4] + increment[3] + noise[:, 3:4]),
+        ],
+        axis=-1,
+    )
 
 
 # ---------------------------------------------------------------------------

@@ -158,6 +158,7 @@ __all__ = [
     "simulate_reads",
     "anchor_power_scale",
     "validate_multipath",
+    "multipath_gain",
 ]
 
 SEARCH_BOX_A = (np.array([0.0, 0.0, 0.0]), np.array([2.0, 3.0, 2.0]))
@@ -529,8 +530,21 @@ def _images(tag, room, seqs):
     return jnp.stack(pts, axis=-2), jnp.stack(coefs)
 
 
-def _composite(reader, tag, wavelength, antenna, room, seqs, softness):
-    """``(Re h_mp, Im h_mp, D)`` for reader ``[..., 4]``, tag ``[..., 3]``, λ broadcastable to ``[...]``."""
+def multipath_gain(
+    reader: jax.Array,
+    tag: jax.Array,
+    wavelength: jax.Array,
+    antenna: uhf_rfid.AntennaParams,
+    room: Any,
+    seqs: tuple,
+    softness: Any,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(Re h_mp, Im h_mp, D)`` for reader ``[..., 4]``, tag ``[..., 3]``, λ broadcastable to ``[...]``.
+
+    The strong-multipath channel relative to the line of sight (image method over ``room``'s
+    reflections, the image sequences ``seqs`` of :func:`image_sequences`), and the reader–tag
+    distance ``D`` (m). Traceable, not validated: :func:`composite_channel` is the checked call.
+    """
     d_vec = tag - reader[..., :3]
     dist = jnp.sqrt(jnp.maximum(jnp.sum(d_vec * d_vec, axis=-1), 1e-12))
     if not seqs:
@@ -619,7 +633,7 @@ def composite_channel(
     return CompositeChannel(re * re + im * im, wrap_angle(2.0 * jnp.arctan2(im, re)))
 
 
-_composite_jit = jax.jit(_composite, static_argnames=("seqs", "softness"))
+_composite_jit = jax.jit(multipath_gain, static_argnames=("seqs", "softness"))
 
 
 def expected_rssi(
@@ -651,7 +665,7 @@ def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num
     """Reads of one tag at one step: ``[J]`` each."""
     k_fade, k_phase, k_read = jax.random.split(key, 3)
     a = uhf_rfid.power_scale(reader, tag, channel, softness=softness, wavelength=lam)
-    re, im, dist = _composite(reader, tag, lam, channel.antenna, mp.room, seqs, softness)
+    re, im, dist = multipath_gain(reader, tag, lam, channel.antenna, mp.room, seqs, softness)
     m2 = re * re + im * im
     a_eff = a * m2 * m2
     # a_eff = 0 (a tag or reader on the ground) gives y = 0, masked below; keep sample_rssi's input > 0

@@ -102,6 +102,12 @@ __all__ = [
     "map_estimate",
     "update_landmarks",
     "update_landmarks_in_order",
+    "SlotUpdates",
+    "landmark_ekf",
+    "landmark_init",
+    "slot_valid",
+    "write_rows",
+    "run_unroll",
 ]
 
 _POSE_ANGLE_DIMS = (2,)
@@ -118,7 +124,7 @@ Below it ``jnp.take`` is faster than the row-copy loop of
 
 UNROLL_MIN_FLOATS = 256
 """Map size per particle (floats) from which :func:`run` unrolls two steps per scan iteration
-when resampling gathers the maps (:func:`_run_unroll`)."""
+when resampling gathers the maps (:func:`run_unroll`)."""
 
 
 @dataclass(frozen=True)
@@ -365,21 +371,23 @@ def init(
 # step
 
 
-def _slot_valid(obs: Any, m: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+def slot_valid(obs: Any, m: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(valid [K], safe ids [K], num_ignored)``: ids outside ``[0, M)`` dropped and counted."""
     in_map = (obs.ids >= 0) & (obs.ids < m)
     valid = obs.mask & in_map
     return valid, jnp.clip(obs.ids, 0, m - 1), jnp.sum(obs.mask & ~in_map).astype(jnp.int32)
 
 
-def _landmark_ekf(om: ObservationModel, r: jax.Array, pose, mean, cov, z) -> kalman.UpdateResult:
+def landmark_ekf(
+    om: ObservationModel, r: jax.Array, pose: jax.Array, mean: jax.Array, cov: jax.Array, z: jax.Array
+) -> kalman.UpdateResult:
     """EKF update of one landmark ``(mean, cov)`` seen from ``pose`` (Tab. 13.1 lines 13–18)."""
     if om.update is not None:
         return om.update(pose, mean, cov, z, r)
     return kalman.ekf_update(mean, cov, z, lambda mu: om.mean(pose, mu), r, obs_angle_dims=om.angle_dims)
 
 
-def _landmark_init(om: ObservationModel, r: jax.Array, pose, z) -> tuple[jax.Array, jax.Array]:
+def landmark_init(om: ObservationModel, r: jax.Array, pose: jax.Array, z: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``μ = h⁻¹(x, z)``, ``Σ = J R Jᵀ``, ``J = ∂h⁻¹/∂z`` (Tab. 13.1 lines 9–11)."""
     if om.initialise is not None:
         return om.initialise(pose, z, r)
@@ -412,12 +420,12 @@ def _shared_vmap(om: ObservationModel, fn, in_axes, out_axes):
 
 
 def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kalman.UpdateResult:
-    """:func:`_landmark_ekf` of one landmark in every particle: ``mu [N, D]``, ``cov [N, D, D]`` or,
+    """:func:`landmark_ekf` of one landmark in every particle: ``mu [N, D]``, ``cov [N, D, D]`` or,
     shared by the particles, ``[D, D]``; a shared covariance comes out shared."""
     axis = None if cov.ndim == mu.ndim else 0
     ekf = _shared_vmap(
         om,
-        lambda p, m_, c_: _landmark_ekf(om, r, p, m_, c_, z),
+        lambda p, m_, c_: landmark_ekf(om, r, p, m_, c_, z),
         in_axes=(0, 0, axis),
         out_axes=kalman.UpdateResult(0, axis, 0, 0, 0, 0),
     )
@@ -425,8 +433,8 @@ def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kal
 
 
 def _particles_init(om: ObservationModel, r: jax.Array, poses, z, shared: bool) -> tuple[jax.Array, jax.Array]:
-    """:func:`_landmark_init` in every particle: ``(mean [N, D], cov [N, D, D] or, shared, [D, D])``."""
-    init = _shared_vmap(om, lambda p: _landmark_init(om, r, p, z), in_axes=0, out_axes=(0, None if shared else 0))
+    """:func:`landmark_init` in every particle: ``(mean [N, D], cov [N, D, D] or, shared, [D, D])``."""
+    init = _shared_vmap(om, lambda p: landmark_init(om, r, p, z), in_axes=0, out_axes=(0, None if shared else 0))
     return init(poses)
 
 
@@ -544,7 +552,7 @@ def update_landmarks(
     through a loop: under ``vmap`` over runs a loop runs as often as the run that needs the
     most iterations, and selects its whole carry at every iteration.
 
-    Returns the :class:`SlotUpdates` (written after resampling, :func:`_write_rows`), the new
+    Returns the :class:`SlotUpdates` (written after resampling, :func:`write_rows`), the new
     ``seen``, per-particle log-likelihood ``[N]`` of the updates (FastSLAM 1.0's weight) and
     the count of new landmarks. Derivatives, forward and reverse, are those of
     :func:`update_landmarks_in_order` (a custom JVP).
@@ -604,7 +612,9 @@ class SlotUpdates(NamedTuple):
     rows_cov: jax.Array
 
 
-def _write_rows(means, covs, upd: SlotUpdates, ancestors):
+def write_rows(
+    means: jax.Array, covs: jax.Array, upd: SlotUpdates, ancestors: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """Scatter the updated rows into maps already copied from ``ancestors``: particle ``n``
     gets its ancestor's rows. One scatter per array over all ``K`` slots (a slot that writes
     nothing has ``write[k] = M`` and is dropped). Writing slot by slot took ``4K`` small kernels
@@ -660,7 +670,7 @@ def kernel(
     model = get_motion_model(config.motion_model)
     k_move, k_resample = jax.random.split(key)
     r = om.noise_cov(params.sensor)
-    valid, ids, num_ignored = _slot_valid(obs, config.num_landmarks)
+    valid, ids, num_ignored = slot_valid(obs, config.num_landmarks)
 
     if config.version == 1:
         poses = model.sample(k_move, state.poses, control, params.motion)
@@ -693,7 +703,7 @@ def kernel(
     # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
     # one pass over the maps, and the old maps are never copied just to be updated
     means, covs = _copy_maps(state.means, state.covs, res.ancestors, config)
-    means, covs = _write_rows(means, covs, updates, res.ancestors)
+    means, covs = write_rows(means, covs, updates, res.ancestors)
     poses = res.particles
     info = extend_info(FastSLAMInfo, base, num_ignored=num_ignored, num_new=num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
@@ -722,7 +732,7 @@ def _copy_maps(means, covs, ancestors, config: FastSLAMConfig):
     return copied if len(copied) == 2 else (copied[0], covs)
 
 
-def _run_unroll(config: FastSLAMConfig) -> int:
+def run_unroll(config: FastSLAMConfig) -> int:
     """Steps per scan iteration in :func:`run`: 2 when resampling gathers maps of at least
     :data:`UNROLL_MIN_FLOATS` per particle, else 1.
 
@@ -746,7 +756,7 @@ step, run = filter_api.build(
         check_state=_validate_state,
         check_inputs=_validate_inputs,
         donate_step=True,
-        unroll=_run_unroll,
+        unroll=run_unroll,
         step_doc="""One FastSLAM step (version from ``config``) with ``control [control_dim]`` and one step's
         observations (fields ``ids``, ``z``, ``mask`` with slots ``[K]``, e.g. a
         :class:`~jaxnav.models.landmarks.RangeBearingObs`).""",

@@ -62,7 +62,7 @@ def test_int_cumsum_is_exact_and_wraps_on_both_backends_paths(m, dtype):
     want = (np.cumsum(x) % 2**32).astype(np.uint32).view(np.dtype(dtype))
     arr = jnp.asarray(x.astype(np.uint32).view(np.dtype(dtype)))
     np.testing.assert_array_equal(jax.jit(fm.int_cumsum)(arr), want)
-    np.testing.assert_array_equal(jax.jit(fm._blocked_int_cumsum)(arr), want)
+    np.testing.assert_array_equal(jax.jit(fm.blocked_int_cumsum)(arr), want)
     np.testing.assert_array_equal(jax.jit(lambda v: jnp.cumsum(v, dtype=v.dtype))(arr), want)
     np.testing.assert_array_equal(
         jax.jit(jax.vmap(fm.int_cumsum))(jnp.stack([arr, arr[::-1]])),

@@ -8,7 +8,6 @@ inputs the library sees, so the only tolerance needed is float32 round-off
 from __future__ import annotations
 
 import math
-import zlib
 
 import hypothesis.extra.numpy as hnp
 import hypothesis.strategies as st
@@ -62,7 +61,7 @@ def _summary(log_weights):
 
 def _rng(request) -> np.random.Generator:
     """Test data from NumPy (no XLA compilation), seeded per test for reproducibility."""
-    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+    return np.random.default_rng(request.getfixturevalue("test_seed"))
 
 
 def _np_probs(log_weights) -> np.ndarray:

@@ -190,9 +190,9 @@ def test_fig_5_6_cells_summary_and_2d_error(tmp_path):
     assert (tmp_path / "f.png").stat().st_size > 10_000
     est = jnp.array([[1.3, 1.4, 1.3, 0.0]])
     tag = jnp.array([1.0, 1.0, 1.0])
-    assert float(xp._error(est, tag, 2)[0]) == pytest.approx(0.5)
-    assert float(xp._error(est.at[0, :2].set(1.0), tag, 2)[0]) == 0.0
-    assert float(xp._error(est, tag, 3)[0]) == pytest.approx(math.sqrt(0.09 + 0.16 + 0.09))
+    assert float(xp.position_error(est, tag, 2)[0]) == pytest.approx(0.5)
+    assert float(xp.position_error(est.at[0, :2].set(1.0), tag, 2)[0]) == 0.0
+    assert float(xp.position_error(est, tag, 3)[0]) == pytest.approx(math.sqrt(0.09 + 0.16 + 0.09))
 
 
 def test_rmse_summary_hand_computed():

@@ -164,13 +164,13 @@ def _one_step_inputs():
 def test_update_average_and_injection_probability_edge_cases():
     ninf = -jnp.inf
     # alpha = 1 forgets the past entirely, even a zero (-inf) past
-    assert float(am._update_average(jnp.asarray(3.0), jnp.asarray(-2.0), 1.0)) == -2.0
-    assert float(am._update_average(jnp.asarray(ninf), jnp.asarray(-2.0), 1.0)) == -2.0
+    assert float(am.update_average(jnp.asarray(3.0), jnp.asarray(-2.0), 1.0)) == -2.0
+    assert float(am.update_average(jnp.asarray(ninf), jnp.asarray(-2.0), 1.0)) == -2.0
     # a zero-likelihood step (degenerate) only decays the average, no NaN
     np.testing.assert_allclose(
-        am._update_average(jnp.asarray(5.0), jnp.asarray(ninf), 0.5), 5.0 + math.log(0.5), rtol=1e-6
+        am.update_average(jnp.asarray(5.0), jnp.asarray(ninf), 0.5), 5.0 + math.log(0.5), rtol=1e-6
     )
-    assert float(am._update_average(jnp.asarray(ninf), jnp.asarray(ninf), 0.5)) == -np.inf
+    assert float(am.update_average(jnp.asarray(ninf), jnp.asarray(ninf), 0.5)) == -np.inf
     p = am.injection_probability
     assert float(p(jnp.asarray(ninf), jnp.asarray(ninf))) == 0.0  # w_slow = 0: nothing yet
     assert float(p(jnp.asarray(ninf), jnp.asarray(7.0))) == 0.0

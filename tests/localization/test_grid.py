@@ -188,7 +188,7 @@ def _cic_by_quadrature(m, mean, sd):
     return integrate.quad(f, m - 1.0, m + 1.0, points=[m, mean] if abs(mean - m) < 1 else [m], limit=200)[0]
 
 
-_cic_1d_jit = jax.jit(grid._cic_1d)
+_cic_1d_jit = jax.jit(grid.cic_1d)
 
 
 @pytest.mark.parametrize("mean, sd", [(0.3, 0.0), (-0.5, 0.0), (0.37, 0.05), (1.2, 0.4), (-0.1, 1.5), (0.0, 3.0)])
@@ -333,7 +333,7 @@ def test_factorised_likelihood_equals_landmarks_log_likelihood_at_the_cell_centr
 
     @jax.jit
     def both(params, obs):
-        got, ignored = grid._log_likelihood(CONFIG, params, obs)
+        got, ignored = grid.cell_log_likelihood(CONFIG, params, obs)
         positions, valid, _ = lm.lookup(params.landmarks, obs)
         return got, ignored, lm.log_likelihood(grid.cell_centres(CONFIG), positions, obs.z, valid, params.sensor)
 

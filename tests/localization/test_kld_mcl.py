@@ -148,8 +148,8 @@ def test_count_is_foxs_stopping_rule_on_the_candidate_sequence(spread):
             np.pi - 0.2 + spread * rng.standard_normal(2000),  # straddles ±π
         ]
     ).astype(np.float32)
-    k_prefix = jax.jit(kld._occupied_bins_per_prefix, static_argnums=1)(jnp.asarray(poses), config.bin_size)
-    n = int(kld._choose_count(k_prefix, config, jnp.float32))
+    k_prefix = jax.jit(kld.occupied_bins_per_prefix, static_argnums=1)(jnp.asarray(poses), config.bin_size)
+    n = int(kld.choose_count(k_prefix, config, jnp.float32))
     th = (poses[:, 2] + np.pi) % (2 * np.pi)  # bins on [-π, π) anchored at -π, as the filter
     cells = np.floor(np.column_stack([poses[:, 0] / 0.25, poses[:, 1] / 0.25, th / config.bin_size[2]]))
     bins = [tuple(b) for b in cells.astype(int)]

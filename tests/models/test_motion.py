@@ -159,3 +159,29 @@ def test_process_cov_matches_sample_covariance(name, control, noise, getkey):
     scale = np.sqrt(np.outer(np.diag(empirical), np.diag(empirical)))
     # correlation-scale tolerance: 200k draws give ~0.3% sampling error; 5% allows linearisation error
     np.testing.assert_array_less(np.abs(q - empirical) / scale, 0.05)
+
+
+def test_increment_moves_xyz_yaw_poses_in_the_world_or_the_body_frame():
+    """[A] Alg. 8 line 13: ``X + dX`` (world), or ``(dx, dy)`` rotated by each pose's yaw (body); φ wrapped."""
+    poses = jnp.asarray([[1.0, 2.0, 0.5, 0.0], [0.0, 0.0, 1.0, math.pi / 2], [0.0, 0.0, 0.0, 3.0]])
+    dx = jnp.asarray([0.1, 0.0, 0.02, 0.5])
+    world = np.asarray(motion.increment_mean(poses, dx, "world"))
+    np.testing.assert_allclose(world[:, :3], np.asarray(poses[:, :3]) + [0.1, 0.0, 0.02], atol=1e-7)
+    np.testing.assert_allclose(world[2, 3], 3.5 - 2 * math.pi, atol=1e-6)  # wrapped to [−π, π)
+    body = np.asarray(motion.increment_mean(poses, dx, "body"))
+    np.testing.assert_allclose(body[1, :2], [0.0, 0.1], atol=1e-7)  # facing +y: forward is +y
+    np.testing.assert_allclose(body[0], world[0], atol=1e-7)  # facing +x: the frames agree
+    with pytest.raises(ValueError, match="frame"):
+        motion.increment_mean(poses, dx, "robot")
+
+
+def test_increment_sample_is_the_mean_plus_gaussian_noise_of_sd(getkey):
+    poses = jnp.zeros((100_000, 4))
+    dx = jnp.asarray([0.1, -0.2, 0.0, 0.1])
+    sd = jnp.asarray([0.01, 0.02, 0.005, 0.03])
+    np.testing.assert_array_equal(
+        motion.increment_sample(getkey(), poses, dx, jnp.zeros(4)), motion.increment_mean(poses, dx)
+    )
+    draws = np.asarray(motion.increment_sample(getkey(), poses, dx, sd, "body"), np.float64)
+    np.testing.assert_allclose(draws.mean(axis=0), np.asarray(dx), atol=4 * float(sd.max()) / math.sqrt(100_000))
+    np.testing.assert_allclose(draws.std(axis=0), np.asarray(sd), rtol=0.02)  # 100k draws: ~0.2 % error on σ

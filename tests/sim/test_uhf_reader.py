@@ -207,7 +207,7 @@ def test_no_walls_reduces_exactly_to_the_light_model(getkey):
     mp0 = R.STRONG_MULTIPATH._replace(room=R.STRONG_MULTIPATH.room._replace(reflection=np.zeros(5, np.float32)))
     seqs = R.image_sequences(2)
     assert len(seqs) == 17
-    re, im, dist = R._composite_jit(
+    re, im, dist = jax.jit(R.multipath_gain, static_argnames=("seqs", "softness"))(
         jnp.asarray(PASS),
         jnp.asarray(PASS_TAG, jnp.float32),
         jnp.float32(LAM),

@@ -163,11 +163,11 @@ def _sequential_reference(om, r, poses, means, covs, seen, obs, m):
         if not bool(obs.mask[k]) or not 0 <= j < m:
             continue
         if not bool(seen[j]):
-            mu, cov = jax.vmap(lambda p: fs._landmark_init(om, r, p, obs.z[k]))(poses)
+            mu, cov = jax.vmap(lambda p: fs.landmark_init(om, r, p, obs.z[k]))(poses)
             seen = seen.at[j].set(True)
             num_new += 1
         else:
-            u = jax.vmap(lambda p, mu, c: fs._landmark_ekf(om, r, p, mu, c, obs.z[k]))(poses, means[:, j], covs[:, j])
+            u = jax.vmap(lambda p, mu, c: fs.landmark_ekf(om, r, p, mu, c, obs.z[k]))(poses, means[:, j], covs[:, j])
             mu, cov, loglik = u.mean, u.cov, loglik + u.log_likelihood
         means, covs = means.at[:, j].set(mu), covs.at[:, j].set(cov)
     return means, covs, seen, loglik, num_new
@@ -195,13 +195,13 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     )
     z = jnp.where(mask[:, None], z, jnp.nan)
     obs = lm.RangeBearingObs(ids, z, mask)
-    valid, safe_ids, _ = fs._slot_valid(obs, m)
+    valid, safe_ids, _ = fs.slot_valid(obs, m)
     ref_means, ref_covs, ref_seen, ref_ll, ref_new = _sequential_reference(om, r, poses, means, covs, seen, obs, m)
     fast = jax.jit(lambda *a: fs.update_landmarks(om, *a, lanes))
     in_order = jax.jit(lambda *a: fs.update_landmarks_in_order(om, *a))  # the scan that gives the derivatives
     for update in (fast, in_order):
         upd, new_seen, ll, num_new = update(r, poses, means, covs, seen, obs, valid, safe_ids)
-        got_means, got_covs = fs._write_rows(means, covs, upd, jnp.arange(n))
+        got_means, got_covs = fs.write_rows(means, covs, upd, jnp.arange(n))
         np.testing.assert_allclose(got_means, ref_means, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(got_covs, ref_covs, rtol=1e-4, atol=1e-8)
         np.testing.assert_array_equal(new_seen, ref_seen)
@@ -224,7 +224,7 @@ def test_write_rows_gives_each_particle_its_ancestors_rows(getkey):
     rows_cov = jnp.asarray(rng.normal(size=(k, n, 2, 2)), jnp.float32)
     write = jnp.asarray([3, m, 0, m], jnp.int32)
     ancestors = jnp.asarray([2, 2, 0, 5, 1, 1], jnp.int32)
-    got_mu, got_cov = fs._write_rows(means, covs, fs.SlotUpdates(write, rows_mu, rows_cov), ancestors)
+    got_mu, got_cov = fs.write_rows(means, covs, fs.SlotUpdates(write, rows_mu, rows_cov), ancestors)
     want_mu, want_cov = np.array(means), np.array(covs)
     for slot, j in enumerate(np.asarray(write)):
         if j < m:
@@ -253,12 +253,12 @@ def test_footprint_closed_form_equals_the_generic_ekf(getkey):
         zs = jax.random.normal(getkey(), (n, 2), jnp.float64) * 0.05
         r = hf_rfid.footprint_cov(hf_rfid.reader_params(0.06))
         r = jnp.asarray(r, jnp.float64)
-        update = lambda om: jax.vmap(lambda p, m, c, z: fs._landmark_ekf(om, r, p, m, c, z))  # noqa: E731
+        update = lambda om: jax.vmap(lambda p, m, c, z: fs.landmark_ekf(om, r, p, m, c, z))  # noqa: E731
         got, ref = update(observation.HF_FOOTPRINT)(poses, means, covs, zs), update(generic)(poses, means, covs, zs)
         for field in ("mean", "cov", "nis", "log_likelihood"):
             np.testing.assert_allclose(getattr(got, field), getattr(ref, field), rtol=1e-10, atol=1e-12, err_msg=field)
         assert np.all(np.abs(np.asarray(got.mean - means)).sum(-1) > 1e-6)  # not a comparison of two no-ops
-        init = lambda om: jax.vmap(lambda p, z: fs._landmark_init(om, r, p, z))  # noqa: E731
+        init = lambda om: jax.vmap(lambda p, z: fs.landmark_init(om, r, p, z))  # noqa: E731
         for g, f in zip(init(observation.HF_FOOTPRINT)(poses, zs), init(generic)(poses, zs)):
             np.testing.assert_allclose(g, f, rtol=1e-10, atol=1e-14)
 
@@ -348,7 +348,7 @@ def test_step_loop_equals_run(num_landmarks, steps, unroll, getkey):
     sims = _sims(getkey(), 1, steps)
     sim = jax.tree_util.tree_map(lambda x: x[0], sims)
     cfg = fs.FastSLAMConfig(num_particles=32, num_landmarks=num_landmarks, version=2)
-    assert fs._run_unroll(cfg) == unroll
+    assert fs.run_unroll(cfg) == unroll
     key = getkey()
     init_key = getkey()
     final, trace = fs.run(key, fs.init(init_key, cfg, PARAMS, X0), cfg, PARAMS, sim.controls, sim.observations)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -139,7 +139,15 @@ def plot_curves(result: dict, path: str) -> None:
     plt.close(fig)
 
 
-def curve_experiment(name, title, x_label, cells, summarize, notes="", x_log=False) -> Experiment:
+def curve_experiment(
+    name: str,
+    title: str,
+    x_label: str,
+    cells: Any,
+    summarize: Any,
+    notes: str = "",
+    x_log: bool = False,
+) -> Experiment:
     """A figure experiment: ``summarize(raw, cells, quick)`` gives its curves."""
 
     def summarize_all(raw, cell_list, quick):

@@ -37,9 +37,9 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -317,7 +317,7 @@ def score(estimate: jax.Array, truth: jax.Array, record: jax.Array) -> tuple[jax
 
 
 @functools.cache
-def run_once(algorithm: str, num_particles: int):
+def run_once(algorithm: str, num_particles: int) -> Callable[..., IRErrors]:
     """``(key, inputs: DriveInputs) -> IRErrors`` of one seeded run (cached: one function per pair).
 
     ``algorithm``: ``"mcl"`` ([W] Alg. 3, ``num_particles`` particles, uniform
@@ -414,7 +414,7 @@ def _digits(col: str) -> int:
     return 3 if col.startswith("theta") else 0
 
 
-def plot_drive(drive: Drive, path: str | None = None, ax=None):
+def plot_drive(drive: Drive, path: str | None = None, ax: Any = None) -> Any:
     """The emitters, the true path, IR MCL's estimate and the odometry (as [W] Figs. 5.11–5.16).
 
     Writes a PNG to ``path`` when given; returns the axes.

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -104,6 +104,7 @@ __all__ = [
     "prior_rmse",
     "rmse_summary",
     "final_mse",
+    "position_error",
 ]
 
 WAVELENGTH = U.A_WAVELENGTH
@@ -284,13 +285,16 @@ def _simulate_and_filter(key, inputs: UHFInputs, configs: Sequence[rt.RFIDTagCon
     return scene, fit, tag_reads, traces
 
 
-def _error(estimate: jax.Array, tag: jax.Array, dims: int) -> jax.Array:
+def position_error(estimate: jax.Array, tag: jax.Array, dims: int) -> jax.Array:
+    """Euclidean error (m) of ``estimate [..., ≥dims]`` against the true ``tag`` over the first ``dims`` coordinates (2: x, y)."""
     d = estimate[..., :dims] - tag[:dims]
     return jnp.sqrt(jnp.sum(d * d, axis=-1))
 
 
 @functools.cache
-def run_once(weightings: tuple[str, ...], dims: int, num_particles: int, refresh: str = "gaussian"):
+def run_once(
+    weightings: tuple[str, ...], dims: int, num_particles: int, refresh: str = "gaussian"
+) -> Callable[..., dict]:
     """``(key, inputs: UHFInputs) -> {field: array}`` of one seeded run (cached: one function per arguments).
 
     Fields: ``err_<weighting>`` ``[T]`` position error over time (m) for each of
@@ -314,7 +318,7 @@ def run_once(weightings: tuple[str, ...], dims: int, num_particles: int, refresh
 
     def fn(key: jax.Array, inputs: UHFInputs) -> dict:
         scene, fit, tag_reads, traces = _simulate_and_filter(key, inputs, configs)
-        out = {f"err_{w}": _error(tr.estimate, scene.tag, dims) for w, tr in zip(weightings, traces)}
+        out = {f"err_{w}": position_error(tr.estimate, scene.tag, dims) for w, tr in zip(weightings, traces)}
         out.update(
             gamma_k=fit.params.k,
             gamma_theta=fit.params.theta,

@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.validation import check_positive_int
+
 __all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
 
 _COMPILED: weakref.WeakKeyDictionary[Callable, dict] = weakref.WeakKeyDictionary()
@@ -122,12 +124,8 @@ def monte_carlo(
         The pytree of ``fn``'s outputs with a leading axis of size ``num_runs``,
         as NumPy arrays.
     """
-    num_runs = int(num_runs)
-    if num_runs < 1:
-        raise ValueError(f"num_runs must be a positive integer, got {num_runs}")
-    chunk = num_runs if chunk_size is None else int(chunk_size)
-    if chunk < 1:
-        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
+    num_runs = check_positive_int("num_runs", num_runs)  # 2.5 is refused, never silently 2
+    chunk = num_runs if chunk_size is None else check_positive_int("chunk_size", chunk_size)
     chunk = min(chunk, num_runs)
     for i, arg in enumerate(run_args):
         for leaf in jax.tree_util.tree_leaves(arg):

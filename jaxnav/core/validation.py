@@ -22,6 +22,7 @@ __all__ = [
     "check_finite",
     "check_choice",
     "check_covariance",
+    "check_slots",
 ]
 
 
@@ -111,3 +112,37 @@ def check_covariance(name: str, cov: Any, dim: int | None = None) -> None:
     except np.linalg.LinAlgError:
         eig = np.linalg.eigvalsh(0.5 * (v + v.T))
         raise ValueError(f"{name} must be positive definite; its smallest eigenvalue is {eig.min():.3g}") from None
+
+
+def check_slots(
+    name: str, ids: Any, mask: Any, values: Any = None, ids_field: str = "ids", num_ids: int | None = None
+) -> None:
+    """Fixed observation slots: integer ``ids``, a boolean (or integer, nonzero = valid) ``mask``,
+    and, where ``mask`` is set, finite ``values [..., D]`` (the latter skipped for tracers). With
+    ``num_ids`` only the slots whose id is in ``[0, num_ids)`` must be finite: the filters drop and
+    count the others without reading them.
+
+    A float mask or float ids are refused (``0.5`` is neither valid nor invalid); a NaN or an
+    infinity in a valid slot is refused with the first place it occurs, since a filter would
+    carry it into every later estimate: mask such a slot out instead.
+    """
+    for field, x in ((ids_field, ids), ("mask", mask)):
+        dtype = np.result_type(getattr(x, "dtype", None) or np.asarray(x).dtype)
+        allowed = "biu" if field == "mask" else "iu"
+        if dtype.kind not in allowed:
+            what = "a boolean array (or integers, nonzero = valid)" if field == "mask" else "an integer array"
+            raise ValueError(f"{name}.{field} must be {what}, got dtype {dtype}")
+    if values is None or not is_concrete((mask, values)):
+        return
+    v = np.asarray(values)
+    valid = np.broadcast_to(np.asarray(mask).astype(bool), v.shape[: np.ndim(mask)])
+    if num_ids is not None:
+        i = np.asarray(ids)
+        valid = valid & (i >= 0) & (i < num_ids)
+    bad = valid & ~np.all(np.isfinite(v.reshape(v.shape[: np.ndim(mask)] + (-1,))), axis=-1)
+    if bad.any():
+        where = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(
+            f"{name}.z holds NaN or infinite values in {int(bad.sum())} valid slot(s), the first at index "
+            f"{where}: mask such slots out ({name}.mask False) instead of passing them"
+        )

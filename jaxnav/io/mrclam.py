@@ -281,6 +281,13 @@ def _read(path: Path, columns: int) -> np.ndarray:
     table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
     if table.shape[1] != columns:
         raise ValueError(f"{path}: expected {columns} columns, found {table.shape[1]}")
+    bad = ~np.isfinite(table)
+    if bad.any():  # a filter would carry one NaN or infinity into every later estimate
+        row, col = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(
+            f"{path}: {int(bad.any(axis=1).sum())} row(s) hold NaN or infinite values, the first is data row "
+            f"{row + 1}, column {col + 1} ({table[row, col]}); remove or correct such rows"
+        )
     return table
 
 

@@ -200,7 +200,7 @@ def init_uniform(
 
 
 def _float_dtype(x: Any) -> Any:
-    dt = jnp.result_type(x)
+    dt = jnp.result_type(x) if hasattr(x, "dtype") else jnp.asarray(x).dtype  # a list or tuple too
     return dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)
 
 

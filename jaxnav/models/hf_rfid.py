@@ -51,7 +51,14 @@ import numpy as np
 
 from jaxnav.core import fastmath
 from jaxnav.core.kalman import UpdateResult, ensure_pd, symmetrize
-from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape, is_concrete
+from jaxnav.core.validation import (
+    check_finite,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    check_slots,
+    is_concrete,
+)
 
 __all__ = [
     "HFReaderParams",
@@ -195,6 +202,8 @@ def validate_detections(
             f"{name}.ids, .readers and .mask must have the same shape, got "
             f"{np.shape(det.ids)}, {np.shape(det.readers)}, {np.shape(det.mask)}"
         )
+    check_slots(name, det.ids, det.mask)
+    check_slots(name, det.readers, det.mask, ids_field="readers")
     if num_readers is not None and not isinstance(det.readers, jax.core.Tracer):
         r = np.asarray(det.readers)[np.asarray(det.mask, bool)]
         if r.size and (r.min() < 0 or r.max() >= num_readers):

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import check_finite, check_positive, check_shape
+from jaxnav.core.validation import check_finite, check_positive, check_shape, check_slots
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
 
@@ -91,15 +91,17 @@ def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, ja
 
     Returns:
         ``(positions [K, 2], valid [K], num_ignored)`` — ``valid`` is the mask
-        restricted to ids inside ``[0, M)``; ``num_ignored`` counts masked-in
-        slots whose id was outside the map (they are dropped, never read out
-        of bounds).
+        (nonzero = set) restricted to ids inside ``[0, M)`` and finite ``z``;
+        ``num_ignored`` counts masked-in slots dropped for either reason (an id
+        outside the map is never read out of bounds; a NaN or infinite ``z``,
+        which the host checks refuse for concrete inputs, never reaches a filter).
     """
     m = landmark_map.shape[0]
-    in_map = (obs.ids >= 0) & (obs.ids < m)
-    valid = obs.mask & in_map
+    mask = obs.mask.astype(bool)
+    usable = (obs.ids >= 0) & (obs.ids < m) & jnp.all(jnp.isfinite(obs.z), axis=-1)
+    valid = mask & usable
     positions = jnp.take(landmark_map, jnp.clip(obs.ids, 0, m - 1), axis=0)
-    return positions, valid, jnp.sum(obs.mask & ~in_map).astype(jnp.int32)
+    return positions, valid, jnp.sum(mask & ~usable).astype(jnp.int32)
 
 
 def log_likelihood(
@@ -159,8 +161,10 @@ def validate_noise(params: RangeBearingNoise) -> None:
     check_positive("sensor noise sd", params.sd)
 
 
-def validate_observations(obs: RangeBearingObs, time_axis: bool) -> None:
-    """Host-side check of the observation arrays' shapes (``[T, K]`` if ``time_axis``)."""
+def validate_observations(obs: RangeBearingObs, time_axis: bool, num_landmarks: int | None = None) -> None:
+    """Host-side check of the observation slots (``[T, K]`` if ``time_axis``): shapes, integer ids, a
+    boolean (or integer) mask, and finite ``z`` in every valid slot whose id is a landmark of the map
+    (``num_landmarks``; all valid slots when ``None``)."""
     lead = (None, None) if time_axis else (None,)
     check_shape("observations.ids", obs.ids, lead)
     check_shape("observations.mask", obs.mask, lead)
@@ -170,6 +174,7 @@ def validate_observations(obs: RangeBearingObs, time_axis: bool) -> None:
             "observations.ids, .mask and .z must agree in their leading shape, got "
             f"{jnp.shape(obs.ids)}, {jnp.shape(obs.mask)}, {jnp.shape(obs.z)}"
         )
+    check_slots("observations", obs.ids, obs.mask, obs.z, num_ids=num_landmarks)
 
 
 # --------------------------------------------------------------------------- a filter on a known map
@@ -203,10 +208,14 @@ def validate_map_params(motion_model: str, params: Any) -> None:
 def check_filter_inputs(config: Any, params: Any, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:
     """The input check of every landmark-map filter (:class:`jaxnav.core.filter.FilterSpec`'s ``check_inputs``):
     :func:`validate_steps` with ``config.motion_model``."""
-    validate_steps(config.motion_model, controls, obs, time_axis)
+    landmarks = getattr(params, "landmarks", None)
+    num_landmarks = np.shape(landmarks)[0] if landmarks is not None else getattr(config, "num_landmarks", None)
+    validate_steps(config.motion_model, controls, obs, time_axis, num_landmarks)
 
 
-def validate_steps(motion_model: str, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:
+def validate_steps(
+    motion_model: str, controls: jax.Array, obs: RangeBearingObs, time_axis: bool, num_landmarks: int | None = None
+) -> None:
     """Host-side check of one step's control and observations (``time_axis``: a sequence's, ``[T, ...]``):
     controls of ``motion_model``'s dimension, finite, and range-bearing observation slots of as many steps."""
     dim = motion.get_motion_model(motion_model).control_dim
@@ -215,7 +224,7 @@ def validate_steps(motion_model: str, controls: jax.Array, obs: RangeBearingObs,
     check_finite(name, controls)
     if not isinstance(obs, RangeBearingObs):
         raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
-    validate_observations(obs, time_axis)
+    validate_observations(obs, time_axis, num_landmarks)
     if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
         raise ValueError(
             f"controls and observations must have the same number of steps, got "

@@ -81,6 +81,7 @@ from jaxnav.core.validation import (
     check_nonnegative,
     check_positive_int,
     check_shape,
+    check_slots,
 )
 from jaxnav.models.motion import MODELS, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
@@ -304,6 +305,7 @@ def _validate_inputs(
             f"observations.ids, .mask and .z must agree in leading shape, got "
             f"{np.shape(obs.ids)}, {np.shape(obs.mask)}, {np.shape(obs.z)}"
         )
+    check_slots("observations", obs.ids, obs.mask, obs.z, num_ids=config.num_landmarks)
     if time_axis and np.shape(obs.ids)[0] != np.shape(controls)[0]:
         raise ValueError(
             f"controls and observations must have the same number of steps, got "
@@ -372,10 +374,13 @@ def init(
 
 
 def slot_valid(obs: Any, m: int) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(valid [K], safe ids [K], num_ignored)``: ids outside ``[0, M)`` dropped and counted."""
-    in_map = (obs.ids >= 0) & (obs.ids < m)
-    valid = obs.mask & in_map
-    return valid, jnp.clip(obs.ids, 0, m - 1), jnp.sum(obs.mask & ~in_map).astype(jnp.int32)
+    """``(valid [K], safe ids [K], num_ignored)``: masked-in slots (nonzero = set) with an id outside
+    ``[0, M)`` or a non-finite ``z`` are dropped and counted (the host checks refuse the latter for
+    concrete inputs; under a caller's ``jit`` it never reaches a landmark's EKF)."""
+    mask = obs.mask.astype(bool)
+    usable = (obs.ids >= 0) & (obs.ids < m) & jnp.all(jnp.isfinite(obs.z), axis=-1)
+    valid = mask & usable
+    return valid, jnp.clip(obs.ids, 0, m - 1), jnp.sum(mask & ~usable).astype(jnp.int32)
 
 
 def landmark_ekf(

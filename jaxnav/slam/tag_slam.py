@@ -218,7 +218,7 @@ def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, ti
     name = "controls" if time_axis else "control"
     check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
     check_finite(name, controls)
-    hf_rfid.validate_detections(detections, time_axis, params.sensor.num_readers)
+    hf_rfid.validate_detections(detections, time_axis, params.sensor.num_readers, "detections")
     if time_axis and np.shape(detections.ids)[0] != np.shape(controls)[0]:
         raise ValueError(
             f"controls and observations must have the same number of steps, got "
@@ -247,7 +247,8 @@ def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd
 def _valid_slots(det: hf_rfid.TagDetections, max_tags: int):
     """``(valid [K], dropped count)``: masked slots with an ID in the table, and the masked ones without."""
     in_table = (det.ids >= 0) & (det.ids < max_tags)
-    return det.mask & in_table, jnp.sum(det.mask & ~in_table).astype(jnp.int32)
+    mask = det.mask.astype(bool)  # an integer mask: nonzero = set (a bitwise & with 2 would drop it)
+    return mask & in_table, jnp.sum(mask & ~in_table).astype(jnp.int32)
 
 
 def _slots(det: hf_rfid.TagDetections, max_tags: int):

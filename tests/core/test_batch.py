@@ -102,13 +102,14 @@ def test_compiles_once_with_ragged_last_chunk(getkey):
     assert len(traces) == 1  # ... by one compiled function
 
 
-@pytest.mark.parametrize("num_runs", [0, -3])
+@pytest.mark.parametrize("num_runs", [0, -3, 2.5, "4", True])
 def test_rejects_nonpositive_num_runs(num_runs, getkey):
+    """Not a positive integer: refused (2.5 silently ran 2 runs)."""
     with pytest.raises(ValueError, match="num_runs"):
         B.monte_carlo(lambda k: k, getkey(), num_runs)
 
 
-@pytest.mark.parametrize("chunk", [0, -1])
+@pytest.mark.parametrize("chunk", [0, -1, 2.5])
 def test_rejects_nonpositive_chunk_size(chunk, getkey):
     with pytest.raises(ValueError, match="chunk_size"):
         B.monte_carlo(lambda k: k, getkey(), 4, chunk_size=chunk)

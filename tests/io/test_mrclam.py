@@ -434,3 +434,34 @@ def test_dead_reckoning_matches_source(seq1, robot1, dr1, seconds, source):
     # · Δt ≈ 1e-5 rad); carried over ≤ 26 m of travel (0.086 m/s · 300 s) that is < 1 mm.
     assert abs(err32 - np.hypot(*(dr64[:2] - truth[:2]))) <= 2e-3
     assert abs(err32 - source) <= 0.005 + bound + 2e-3
+
+
+def _write_dataset(folder, measurement_rows):
+    """A two-landmark copy of the dataset's file layout (robot 1), with the given measurement rows."""
+    (folder / "Barcodes.dat").write_text("# subject barcode\n1 5\n2 14\n6 63\n7 25\n")
+    (folder / "Landmark_Groundtruth.dat").write_text(
+        "# subject x y sdx sdy\n6 1.0 2.0 0.01 0.01\n7 3.0 1.0 0.01 0.01\n"
+    )
+    (folder / "Robot1_Odometry.dat").write_text("# t v w\n0.0 0.1 0.0\n0.1 0.1 0.0\n0.2 0.1 0.0\n")
+    (folder / "Robot1_Groundtruth.dat").write_text(
+        "# t x y theta\n0.0 0.0 0.0 0.0\n0.1 0.01 0.0 0.0\n0.2 0.02 0.0 0.0\n"
+    )
+    (folder / "Robot1_Measurement.dat").write_text("# t barcode range bearing\n" + measurement_rows)
+
+
+def test_a_non_finite_value_in_a_file_is_refused_with_its_place(tmp_path):
+    """One ``inf`` range in a measurement file must not reach a filter (it would poison every later
+    estimate): the loader names the file, the data row and the column."""
+    good = tmp_path / "good"
+    good.mkdir()
+    _write_dataset(good, "0.05 63 1.5 0.1\n0.15 25 2.0 -0.2\n")
+    robot = mrclam.load_robot(1, good)
+    assert robot.num_landmark == 2
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    _write_dataset(bad, "0.05 63 1.5 0.1\n0.15 25 inf -0.2\n")
+    with pytest.raises(
+        ValueError,
+        match=r"Robot1_Measurement.dat: 1 row\(s\) hold NaN or infinite values, the first is data row 2, column 3",
+    ):
+        mrclam.load_robot(1, bad)

@@ -208,7 +208,7 @@ def test_degenerate_step_is_flagged_raises_injection_and_never_nan():
     """A step with zero likelihood everywhere (w_avg = 0) only decays both averages, so from
     w_slow = w_fast it gives p_inject = 1 − (1 − α_fast)/(1 − α_slow) exactly (0.18 here)."""
     config, params, control, obs = _one_step_inputs()
-    bad = obs._replace(z=obs.z.at[0].set(jnp.nan))  # an unmasked NaN: zero likelihood everywhere
+    bad = obs._replace(z=obs.z.at[0].set(1e20))  # a range of 1e20 m: zero likelihood everywhere
     state = am.init(jax.random.PRNGKey(0), config, params, START, jnp.full((3,), 0.1))
     state = state._replace(log_w_slow=jnp.float32(8.0), log_w_fast=jnp.float32(8.0))
     new, info = am.step(jax.random.PRNGKey(1), state, config, params, control, bad)

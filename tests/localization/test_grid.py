@@ -381,7 +381,7 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
 
 def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan():
     params, sim = _params(), _sim()
-    bad = sim.observations._replace(z=sim.observations.z.at[1, 0].set(jnp.nan))  # unmasked NaN at step 1
+    bad = sim.observations._replace(z=sim.observations.z.at[1, 0].set(1e20))  # zero likelihood at step 1
     final, trace = grid.run(None, grid.init(None, CONFIG, params, START), CONFIG, params, sim.controls, bad)
     np.testing.assert_array_equal(np.flatnonzero(trace.degenerate), [1])
     assert trace.log_likelihood[1] == -np.inf and np.all(np.isfinite(np.delete(np.asarray(trace.log_likelihood), 1)))

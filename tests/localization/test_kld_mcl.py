@@ -194,7 +194,7 @@ def test_degenerate_step_resets_only_active_weights_and_never_nan():
     config, params, state = r["config"], r["params"], r["final"]
     t = STEPS - 1
     obs = jax.tree_util.tree_map(lambda x: x[t], r["obs"])
-    bad = obs._replace(z=obs.z.at[0].set(jnp.nan))  # an unmasked NaN: zero likelihood everywhere
+    bad = obs._replace(z=obs.z.at[0].set(1e20))  # a range of 1e20 m: zero likelihood everywhere
     new, info = kld.step(jax.random.PRNGKey(0), state, config, params, r["controls"][t], bad)
     assert bool(info.degenerate) and info.log_likelihood == -np.inf
     # uniform over the n_{t-1} active particles only; a degenerate step reports ESS 0 (weights.step_ess)

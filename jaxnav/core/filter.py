@@ -52,7 +52,7 @@ import inspect
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
@@ -92,6 +92,7 @@ class FilterSpec:
         donate_step: ``step`` donates its state (in-place tables).
         unroll: ``config -> int``, steps per ``lax.scan`` iteration in ``run``.
         step_doc, run_doc: the first paragraphs of the generated functions' docstrings.
+        time_inputs: the names ``run`` gives the same inputs with a time axis (default: ``inputs``).
     """
 
     name: str
@@ -107,7 +108,7 @@ class FilterSpec:
     unroll: Callable[[Any], int] = _one_step_per_iteration
     step_doc: str = ""
     run_doc: str = ""
-    time_inputs: tuple[str, ...] | None = field(default=None)
+    time_inputs: tuple[str, ...] | None = None
 
     @property
     def run_inputs(self) -> tuple[str, ...]:

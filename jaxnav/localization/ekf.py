@@ -129,11 +129,6 @@ def validate_state(state: KalmanState) -> None:
     check_covariance("state.cov", state.cov, 3)
 
 
-def validate_inputs(config: Any, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    """Controls ``[(T,) control_dim]`` and matching observation slots (:func:`jaxnav.models.landmarks.validate_steps`)."""
-    lm.validate_steps(config.motion_model, controls, obs, time_axis)
-
-
 def init(
     key: jax.Array | None, config: Any, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array
 ) -> KalmanState:

@@ -503,10 +503,6 @@ def _validate_state(config: GridConfig, params: Any, state: GridState) -> None:
         raise ValueError("state.log_belief contains NaN values")
 
 
-def _validate_inputs(config: GridConfig, controls: jax.Array, obs: lm.RangeBearingObs, time_axis: bool) -> None:
-    lm.validate_steps(config.motion_model, controls, obs, time_axis)
-
-
 def _float_dtype(*xs: Any) -> Any:
     dt = jnp.result_type(*xs)
     return dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)

@@ -9,52 +9,7 @@ The tables and figures are listed in :mod:`jaxnav.experiments.catalog` and
 run by name with :func:`jaxnav.experiments.registry.run`.
 """
 
-from jaxnav.experiments.hf_slam.simulation import (
-    COLUMN_HEADS,
-    ERROR_COLUMNS,
-    METHODS,
-    NOTHING_MAPPED,
-    TAG_COLUMNS,
-    TRAJECTORIES,
-    Errors,
-    HFSetting,
-    MethodRun,
-    World,
-    dead_reckoning,
-    detection_counts,
-    error_cell,
-    fastslam_parallel_slots,
-    filter_world,
-    format_errors,
-    make_world,
-    plot_run,
-    reachable_tags,
-    run_method,
-    run_once,
-    score,
-)
+from jaxnav.experiments.hf_slam import simulation as _simulation
+from jaxnav.experiments.hf_slam.simulation import *  # noqa: F403  (the study's module, re-exported)
 
-__all__ = [
-    "METHODS",
-    "TRAJECTORIES",
-    "HFSetting",
-    "World",
-    "MethodRun",
-    "Errors",
-    "ERROR_COLUMNS",
-    "COLUMN_HEADS",
-    "TAG_COLUMNS",
-    "NOTHING_MAPPED",
-    "make_world",
-    "reachable_tags",
-    "run_method",
-    "fastslam_parallel_slots",
-    "filter_world",
-    "score",
-    "run_once",
-    "error_cell",
-    "dead_reckoning",
-    "detection_counts",
-    "format_errors",
-    "plot_run",
-]
+__all__ = list(_simulation.__all__)

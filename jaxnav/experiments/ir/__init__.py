@@ -9,52 +9,7 @@ The tables are listed in :mod:`jaxnav.experiments.catalog` and run by name
 with :func:`jaxnav.experiments.registry.run`.
 """
 
-from jaxnav.experiments.ir.positioning import (
-    ALGORITHMS,
-    COLUMN_HEADS,
-    COLUMNS,
-    DRIVES,
-    FAILED_CODE,
-    HEIGHTS,
-    LAYOUTS,
-    QUICK,
-    ROTATION_SCORED_FROM,
-    SPEEDS,
-    Drive,
-    DriveInputs,
-    IRErrors,
-    IRSetting,
-    drive_inputs,
-    drive_once,
-    format_errors,
-    installed_layout,
-    path_and_record,
-    plot_drive,
-    run_once,
-    score,
-)
+from jaxnav.experiments.ir import positioning as _positioning
+from jaxnav.experiments.ir.positioning import *  # noqa: F403  (the study's module, re-exported)
 
-__all__ = [
-    "IRSetting",
-    "DriveInputs",
-    "IRErrors",
-    "COLUMNS",
-    "COLUMN_HEADS",
-    "LAYOUTS",
-    "ALGORITHMS",
-    "DRIVES",
-    "HEIGHTS",
-    "SPEEDS",
-    "FAILED_CODE",
-    "ROTATION_SCORED_FROM",
-    "QUICK",
-    "path_and_record",
-    "drive_inputs",
-    "installed_layout",
-    "run_once",
-    "Drive",
-    "drive_once",
-    "format_errors",
-    "plot_drive",
-    "score",
-]
+__all__ = list(_positioning.__all__)

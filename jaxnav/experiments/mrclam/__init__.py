@@ -5,24 +5,7 @@ MCL, EKF-SLAM and FastSLAM 1.0/2.0 on a robot's log and scores them against
 the Vicon ground truth (re-exported here).
 """
 
-from jaxnav.experiments.mrclam.evaluation import (
-    ALGORITHMS,
-    NOTHING_MAPPED,
-    AlgorithmResult,
-    MRCLAMSettings,
-    format_table,
-    plot_robot,
-    run_algorithm,
-    run_robot,
-)
+from jaxnav.experiments.mrclam import evaluation as _evaluation
+from jaxnav.experiments.mrclam.evaluation import *  # noqa: F403  (the study's module, re-exported)
 
-__all__ = [
-    "ALGORITHMS",
-    "MRCLAMSettings",
-    "AlgorithmResult",
-    "run_algorithm",
-    "run_robot",
-    "format_table",
-    "plot_robot",
-    "NOTHING_MAPPED",
-]
+__all__ = list(_evaluation.__all__)

@@ -10,52 +10,7 @@ The figures are listed in :mod:`jaxnav.experiments.catalog` and run by name
 with :func:`jaxnav.experiments.registry.run`.
 """
 
-from jaxnav.experiments.uhf.localization import (
-    ANCHOR_LAMBDAS,
-    CLOSE_ANCHOR,
-    FAILED_M,
-    FINAL_FRACTION,
-    MARGIN,
-    METHODS,
-    MULTIPATHS,
-    PASS_DEPTHS,
-    PASS_HEIGHTS,
-    QUICK,
-    SPEED,
-    WAVELENGTH,
-    Scene,
-    UHFInputs,
-    UHFSetting,
-    anchor_position,
-    draw_scene,
-    final_mse,
-    prior_rmse,
-    rmse_summary,
-    run_inputs,
-    run_once,
-)
+from jaxnav.experiments.uhf import localization as _localization
+from jaxnav.experiments.uhf.localization import *  # noqa: F403  (the study's module, re-exported)
 
-__all__ = [
-    "WAVELENGTH",
-    "MARGIN",
-    "SPEED",
-    "PASS_DEPTHS",
-    "PASS_HEIGHTS",
-    "CLOSE_ANCHOR",
-    "ANCHOR_LAMBDAS",
-    "METHODS",
-    "FINAL_FRACTION",
-    "FAILED_M",
-    "MULTIPATHS",
-    "QUICK",
-    "UHFSetting",
-    "UHFInputs",
-    "Scene",
-    "run_inputs",
-    "anchor_position",
-    "draw_scene",
-    "run_once",
-    "prior_rmse",
-    "rmse_summary",
-    "final_mse",
-]
+__all__ = list(_localization.__all__)

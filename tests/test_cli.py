@@ -38,7 +38,10 @@ def test_demo_prints_errors_and_writes_png(tmp_path):
 def test_demo_rejects_bad_arguments(tmp_path):
     out = _jaxnav("demo", "--steps", "0", "--out", "", cwd=tmp_path)
     assert out.returncode == 2
-    assert "--steps and --particles must be positive" in out.stderr
+    assert (
+        out.stderr
+        == "jaxnav demo: error: argument --steps: must be a positive integer, got 0 (see 'jaxnav demo --help')\n"
+    )
 
 
 def test_mrclam_algorithm_list_matches_the_experiment():
@@ -79,7 +82,7 @@ def test_ir_runs_a_drive_and_writes_png(tmp_path):
     "args, message",
     [
         (("--height", "0"), "height"),
-        (("--failed-code", "12"), "failed_code"),
+        (("--failed-code", "12"), "--failed-code"),
         (("--speed-mm", "-5"), "speed"),
     ],
 )
@@ -87,6 +90,22 @@ def test_ir_rejects_bad_arguments(tmp_path, args, message):
     out = _jaxnav("ir", *args, "--out", "", cwd=tmp_path)
     assert out.returncode == 2
     assert message in out.stderr
+
+
+def test_ir_says_when_the_filter_never_started(capsys):
+    """Receivers 100 m below the emitters decode nothing: the filter never starts, and the command says
+    so instead of a start time, and prints no errors for the meaningless estimate of its uniform cloud."""
+    from jaxnav.cli import main
+
+    argv = ["ir", "--height", "100", "--drive", "rotation", "--particles", "50", "--out", ""]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "0 receiver detections; localization never started (no unique ID was decoded)" in out
+    assert "started at" not in out
+    mcl = next(line.split() for line in out.splitlines() if line.startswith("IR MCL"))
+    assert mcl[2:] == ["n/a"] * 8
+    odometry = next(line.split() for line in out.splitlines() if line.startswith("odometry"))
+    assert all(float(v) > 0 for v in odometry[1:])
 
 
 def test_experiments_list_names_the_ir_experiments(tmp_path):
@@ -140,7 +159,7 @@ def test_uhf_real_localizes_the_real_tags(tmp_path, adarf_dir):
     "args, message",
     [
         (("--weightings", "loud"), "weighting"),
-        (("--particles", "0"), "num_particles"),
+        (("--particles", "0"), "--particles"),
         (("--experiment", "no-such"), "unknown experiment"),
     ],
 )

@@ -30,9 +30,20 @@ What the skeleton guarantees:
   ``(config, params)`` pair with those *values* is seen, not at every call (an online loop
   passes the same parameters at every step). The memo is keyed on the parameters' tree
   structure, shapes, dtypes and a hash of their bytes, never on object identity, so a
-  NumPy array changed in place is checked again. The state and the inputs change at every
-  call and are checked at every call. Value checks are skipped for tracers (inside a
+  NumPy array changed in place is checked again. The inputs are checked at every call, the
+  state unless it is the one the filter just returned (below). Value checks are skipped for tracers (inside a
   caller's ``jit``/``vmap`` the values are unknown); shape checks always run.
+* **No state a filter could not have made.** Besides the filter's own checks, the state
+  must be of the filter's state type, its floating-point arrays float32 or float64 (one
+  precision throughout), with no NaN and no ``+inf`` (``-inf`` only in log-domain fields,
+  those named ``log_…``), and no magnitude above
+  :data:`~jaxnav.core.validation.MAX_MAGNITUDE`. A state the filter itself just returned or just
+  checked (the very same JAX arrays, with the same ``config``) is not read again: an online loop,
+  or a benchmark running from one initial state, pays nothing for the check.
+  The parameters' floating-point values must be finite and at most
+  :data:`~jaxnav.core.validation.MAX_MAGNITUDE` (log-domain fields, ``log_…``, may be ``-inf``).
+* **Lists are arrays.** An input passed as a Python list or plain tuple of numbers is
+  read as an array.
 * **Compiled once per configuration and shapes.** ``config`` is the only static argument;
   new keys, parameters, data or states of the same shapes reuse the compiled program
   (``step.trace_count()`` and ``run.trace_count()`` count the traces, for tests).
@@ -50,6 +61,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import threading
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -59,7 +71,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["FilterSpec", "Filter", "build", "scan", "check_key"]
+from jaxnav.core.validation import check_magnitude, is_concrete
+
+__all__ = ["FilterSpec", "Filter", "build", "scan", "check_key", "check_params_arrays", "check_state_arrays"]
 
 
 def _no_check(*args: Any, **kwargs: Any) -> None:
@@ -68,6 +82,10 @@ def _no_check(*args: Any, **kwargs: Any) -> None:
 
 def _no_prepare(config: Any, *inputs: Any) -> tuple:
     return inputs
+
+
+def _identity(x: Any) -> Any:
+    return x
 
 
 def _one_step_per_iteration(config: Any) -> int:
@@ -93,6 +111,9 @@ class FilterSpec:
         unroll: ``config -> int``, steps per ``lax.scan`` iteration in ``run``.
         step_doc, run_doc: the first paragraphs of the generated functions' docstrings.
         time_inputs: the names ``run`` gives the same inputs with a time axis (default: ``inputs``).
+        state_type: the state's class (e.g. ``MCLState``); anything else is refused.
+        state_values: ``state -> pytree``, the part of a concrete state whose values are checked
+            (default all of it; KLD-MCL: its active slots, the others are never read).
     """
 
     name: str
@@ -109,6 +130,8 @@ class FilterSpec:
     step_doc: str = ""
     run_doc: str = ""
     time_inputs: tuple[str, ...] | None = None
+    state_type: type | tuple[type, ...] | None = None
+    state_values: Callable[[Any], Any] = _identity
 
     @property
     def run_inputs(self) -> tuple[str, ...]:
@@ -241,6 +264,113 @@ def _fingerprint(leaves: list, treedef: Any) -> tuple | None:
     return treedef, tuple(meta), digest.digest()
 
 
+def _state_leaves(tree: Any, root: str = "state") -> list[tuple[str, Any]]:
+    """``("state.field.sub", leaf)`` for every leaf of ``tree``."""
+    named = []
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        parts = [getattr(k, "name", None) or str(getattr(k, "key", getattr(k, "idx", k))) for k in path]
+        named.append((".".join([root, *parts]), leaf))
+    return named
+
+
+def check_params_arrays(params: Any) -> None:
+    """The checks every filter's parameters pass (module docstring): floating-point leaves finite
+    and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude; log-domain fields
+    (named ``log_…``) may also be ``-inf`` (zero probability).
+    Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
+    for name, leaf in _state_leaves(params, "params"):
+        if isinstance(leaf, jax.core.Tracer) or np.dtype(_dtype(leaf)).kind != "f":
+            continue
+        v = np.asarray(leaf)
+        if name.rsplit(".", 1)[-1].startswith("log_"):
+            if np.isnan(v).any() or (v == np.inf).any():
+                raise ValueError(f"{name} holds NaN or +inf: a log-probability is finite or -inf")
+            v = np.where(v == -np.inf, 0.0, v)
+        check_magnitude(name, v)
+
+
+def check_state_arrays(state: Any) -> None:
+    """The checks every filter state passes (module docstring): floating-point leaves of one
+    precision, float32 or float64, with no NaN, no ``+inf``, and ``-inf`` only in fields named
+    ``log_…``, and no magnitude above :data:`~jaxnav.core.validation.MAX_MAGNITUDE`.
+    Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
+    floats = [(name, leaf) for name, leaf in _state_leaves(state) if np.dtype(_dtype(leaf)).kind == "f"]
+    for name, leaf in floats:
+        dtype = np.dtype(_dtype(leaf))
+        if dtype.itemsize < 4:
+            raise ValueError(
+                f"{name} has dtype {dtype}: filter states are float32 or float64 (make the state with the "
+                "filter's init, or cast it with .astype(jnp.float32))"
+            )
+    if len({np.dtype(_dtype(leaf)) for _, leaf in floats}) > 1:
+        found = ", ".join(f"{name} {np.dtype(_dtype(leaf))}" for name, leaf in floats)
+        raise ValueError(f"the state's arrays must share one floating-point dtype, got {found}")
+    for name, leaf in floats:
+        if isinstance(leaf, jax.core.Tracer):
+            continue
+        v = np.asarray(leaf)
+        log_domain = name.rsplit(".", 1)[-1].startswith("log_")
+        bad = np.isnan(v) | (v == np.inf) | ((v == -np.inf) & (not log_domain))
+        if bad.any():
+            where = tuple(int(i) for i in np.argwhere(bad)[0]) if v.ndim else ()
+            raise ValueError(
+                f"{name} holds {int(bad.sum())} NaN or infinite value(s), the first ({float(v[where])}) at "
+                f"index {where}: no filter step can recover from it"
+            )
+        check_magnitude(name, np.where(v == -np.inf, 0.0, v) if log_domain else v)
+
+
+def _dtype(leaf: Any) -> Any:
+    dtype = getattr(leaf, "dtype", None)
+    return dtype if dtype is not None else np.asarray(leaf).dtype
+
+
+def _plain_sequences_as_arrays(inputs: tuple) -> tuple:
+    """Inputs given as a Python list or a plain tuple of numbers (not a NamedTuple of fields)
+    become NumPy arrays, so that ``run(..., controls.tolist(), ...)`` means what it says; other
+    lists are left for the filter's checks to name."""
+    return tuple(_numbers_as_array(x) if type(x) in (list, tuple) else x for x in inputs)
+
+
+def _numbers_as_array(x: Any) -> Any:
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError):  # ragged, or not numbers
+        return x
+    return a if a.dtype.kind in "biuf" else x
+
+
+class _KnownStates:
+    """Weak references to the last states a filter returned or checked, each with its ``config``:
+    passing one of these very states (an online loop, or a benchmark that runs from one initial
+    state again and again) skips the value checks, which would read the state back to the host.
+    Only states made of JAX arrays are remembered: they are immutable, so the same objects hold
+    the same values; a NumPy leaf could have been changed in place."""
+
+    def __init__(self, size: int = 2) -> None:
+        self._size = size
+        self._known: list[tuple[Any, tuple]] = []
+        self._lock = threading.Lock()
+
+    def remember(self, config: Any, state: Any) -> None:
+        leaves = jax.tree_util.tree_leaves(state)
+        if not all(isinstance(leaf, jax.Array) and not isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+            return
+        entry = (config, tuple(weakref.ref(leaf) for leaf in leaves))
+        with self._lock:
+            self._known = [entry, *self._known][: self._size]
+
+    def __contains__(self, item: tuple[Any, Any]) -> bool:
+        config, state = item
+        leaves = jax.tree_util.tree_leaves(state)
+        with self._lock:
+            known = list(self._known)
+        return any(
+            c == config and len(refs) == len(leaves) and all(r() is leaf for r, leaf in zip(refs, leaves))
+            for c, refs in known
+        )
+
+
 def _article(name: str) -> str:
     """``name`` with "a" or "an" as it is read aloud ("an MCLConfig", "a GridConfig", "an EKFConfig")."""
     spelled = len(name) > 1 and name[:2].isupper()  # an initialism: its first letter is spelled out
@@ -298,7 +428,8 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
     step_jit = jax.jit(step_kernel, static_argnums=(2,), donate_argnums=(1,) if spec.donate_step else ())
     run_jit = jax.jit(run_pure, static_argnums=(2,))
     run_jit_donated = jax.jit(run_pure, static_argnums=(2,), donate_argnums=(1,))
-    check_params = _ParamsMemo(spec.check_params)
+    check_params = _ParamsMemo(lambda config, params: (spec.check_params(config, params), check_params_arrays(params)))
+    known_states = _KnownStates()
     head = ("key", "state", "config", "params")
     step_signature = _signature(head, spec.inputs)
     run_signature = _signature(head, spec.run_inputs, [("donate_state", False)])
@@ -308,7 +439,17 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
             raise ValueError(f"config must be {_article(spec.config_type.__name__)}, got {type(config).__name__}")
         check_key(key, allow_none=spec.deterministic)
         check_params(config, params)
-        spec.check_state(config, params, state)
+        if spec.state_type is not None and not isinstance(state, spec.state_type):
+            types = spec.state_type if isinstance(spec.state_type, tuple) else (spec.state_type,)
+            raise ValueError(
+                f"state must be {' or '.join(_article(t.__name__) for t in types)} (from the filter's init or "
+                f"a previous step), got {type(state).__name__}"
+            )
+        if (config, state) not in known_states:
+            spec.check_state(config, params, state)
+            check_state_arrays(spec.state_values(state) if is_concrete(state) else state)
+            known_states.remember(config, state)
+        inputs = _plain_sequences_as_arrays(inputs)
         spec.check_inputs(config, params, *inputs, time_axis=time_axis)
         return spec.prepare(config, *inputs)
 
@@ -319,7 +460,9 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
             args = step_signature.bind(*args, **kwargs).args
         key, state, config, params, *inputs = args
         inputs = checked(key, state, config, params, tuple(inputs), time_axis=False)
-        return step_jit(key, state, config, params, *inputs)
+        out = step_jit(key, state, config, params, *inputs)
+        known_states.remember(config, out[0])
+        return out
 
     def run(*args: Any, donate_state: bool = False, **kwargs: Any) -> tuple[Any, Any]:
         if kwargs or len(args) != num_args:
@@ -327,7 +470,9 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
         key, state, config, params, *inputs = args
         inputs = checked(key, state, config, params, tuple(inputs), time_axis=True)
         jitted = run_jit_donated if donate_state else run_jit
-        return jitted(key, state, config, params, *inputs)
+        out = jitted(key, state, config, params, *inputs)
+        known_states.remember(config, out[0])
+        return out
 
     for fn, signature, doc, notes, jitted, counter in (
         (

@@ -70,6 +70,7 @@ __all__ = [
     "ukf_update_sequential",
     "kalman_predict",
     "kalman_update",
+    "finite_or_previous",
 ]
 
 DEFAULT_JITTER = 1e-9  # added to the diagonal (units²) by ensure_pd
@@ -526,3 +527,13 @@ def kalman_update(
 ) -> UpdateResult:
     """Linear update ``z = C x + v`` in Joseph form; a thin case of :func:`ekf_update`."""
     return ekf_update(mean, cov, z, lambda x: observation @ x, noise_cov, valid=valid)
+
+
+def finite_or_previous(new: Any, previous: Any) -> tuple[Any, jax.Array]:
+    """The guard every Gaussian filter's step ends with: ``(new, False)`` when every floating-point
+    leaf of the pytree ``new`` is finite, else ``(previous, True)`` — a step whose update is not
+    finite (an overflow under a caller's ``jit``, where the host checks cannot see the values) is
+    not applied, and is flagged. On finite input the select keeps every value."""
+    leaves = [x for x in jax.tree_util.tree_leaves(new) if jnp.issubdtype(x.dtype, jnp.floating)]
+    ok = jnp.all(jnp.stack([jnp.all(jnp.isfinite(x)) for x in leaves]))
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), new, previous), ~ok

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from jaxnav.core import resampling, weights
 
-__all__ = ["PFInfo", "extend_info", "finish_step"]
+__all__ = ["PFInfo", "extend_info", "finish_step", "keep_finite"]
 
 InfoT = TypeVar("InfoT", bound="PFInfo")
 
@@ -64,6 +64,22 @@ def extend_info(info_type: type[InfoT], base: PFInfo, **fields: Any) -> InfoT:
     """``info_type`` (a subclass of :class:`PFInfo`) with the fields of ``base`` and ``fields``."""
     shared = {f.name: getattr(base, f.name) for f in dataclasses.fields(PFInfo)}
     return info_type(**shared, **fields)
+
+
+def keep_finite(previous: jax.Array, moved: jax.Array, log_likelihood: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The guard every particle filter's step applies after its move and its scores.
+
+    A particle whose move is not finite (an overflow under a caller's ``jit``, where the host
+    checks cannot see the values) keeps its ``previous [N, D]`` value and gets zero weight
+    (log-likelihood ``-inf``), so it is resampled away and never reaches the estimate; a NaN or
+    ``+inf`` score is zero weight too (:func:`jaxnav.core.weights.normalize`). When no particle is
+    left the step is degenerate: the previous particles are kept with uniform weights, and the
+    step is flagged. On finite input both selects keep every value: results are unchanged.
+
+    Returns ``(particles [N, D], log_likelihood [N])``.
+    """
+    ok = jnp.all(jnp.isfinite(moved), axis=-1)
+    return jnp.where(ok[:, None], moved, previous), jnp.where(ok, log_likelihood, -jnp.inf)
 
 
 def finish_step(

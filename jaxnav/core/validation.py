@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
@@ -23,7 +24,20 @@ __all__ = [
     "check_choice",
     "check_covariance",
     "check_slots",
+    "MAX_MAGNITUDE",
+    "check_magnitude",
+    "check_covariances",
+    "float_array",
+    "check_bounds",
+    "as_array",
+    "check_type",
 ]
+
+MAX_MAGNITUDE = 1e6
+"""The largest magnitude a control, a noise parameter or a coordinate may have (SI units: m, s,
+rad, m/s). The models square and multiply these values (``α₁v²``, ``dx² + dy²``, ``J Σ Jᵀ``);
+past about 1e19 a square overflows single precision and a filter would return NaN. No indoor
+robot moves a million metres per step, so anything larger is a unit or data error."""
 
 
 def is_concrete(x: Any) -> bool:
@@ -57,29 +71,64 @@ def check_shape(name: str, x: Any, shape: tuple[int | None, ...]) -> None:
         raise ValueError(f"{name} must have shape {want}, got {tuple(actual)}")
 
 
-def _values(x: Any) -> np.ndarray | None:
-    return np.asarray(x) if is_concrete(x) else None
+def _values(name: str, x: Any) -> np.ndarray | None:
+    """The values of ``x`` on the host (``None`` for tracers); ``ValueError`` naming ``name`` if
+    ``x`` is not a number or an array of numbers (``None``, a string, an object)."""
+    if not is_concrete(x):
+        return None
+    v = np.asarray(x) if x is not None else None
+    if v is None or v.dtype.kind not in "biufc":
+        raise ValueError(f"{name} must be a number or an array of numbers, got {type(x).__name__}")
+    return v
+
+
+def check_type(name: str, x: Any, expected: type | tuple[type, ...]) -> None:
+    """``x`` must be an instance of ``expected``; ``ValueError`` naming ``name`` and the type."""
+    if not isinstance(x, expected):
+        types = expected if isinstance(expected, tuple) else (expected,)
+        raise ValueError(f"{name} must be {' or '.join(t.__name__ for t in types)}, got {type(x).__name__}")
 
 
 def check_finite(name: str, x: Any) -> None:
     """No NaN or infinity in ``x`` (skipped for tracers)."""
-    v = _values(x)
+    v = _values(name, x)
     if v is not None and not np.all(np.isfinite(v)):
         raise ValueError(f"{name} contains NaN or infinite values")
 
 
 def check_positive(name: str, x: Any) -> None:
     """Every entry of ``x`` must be finite and > 0 (skipped for tracers)."""
-    v = _values(x)
+    v = _values(name, x)
     if v is not None and not (np.all(np.isfinite(v)) and np.all(v > 0)):
         raise ValueError(f"{name} must be finite and strictly positive, got {v}")
 
 
 def check_nonnegative(name: str, x: Any) -> None:
     """Every entry of ``x`` must be finite and ≥ 0 (skipped for tracers)."""
-    v = _values(x)
+    v = _values(name, x)
     if v is not None and not (np.all(np.isfinite(v)) and np.all(v >= 0)):
         raise ValueError(f"{name} must be finite and non-negative, got {v}")
+
+
+def _first_index(bad: np.ndarray) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.argwhere(bad)[0])
+
+
+def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
+    """Every entry of ``x`` must be finite with ``|x| ≤ limit`` (skipped for tracers).
+
+    Raises ``ValueError`` naming ``name``, the first offending index and its value.
+    """
+    v = _values(name, x)
+    if v is None or v.dtype.kind not in "fiuc":
+        return
+    bad = ~np.isfinite(v) | (np.abs(v) > limit)
+    if bad.any():
+        where = _first_index(bad) if v.ndim else ()
+        raise ValueError(
+            f"{name} holds {int(bad.sum())} value(s) that are not finite or exceed {limit:g} in magnitude, "
+            f"the first ({float(v[where]):g}) at index {where}; values are in SI units (m, s, rad)"
+        )
 
 
 def check_choice(name: str, value: Any, choices: Any) -> None:
@@ -98,7 +147,7 @@ def check_covariance(name: str, cov: Any, dim: int | None = None) -> None:
     if len(shape) != 2 or shape[0] != shape[1] or (dim is not None and shape[0] != dim):
         want = f"({dim}, {dim})" if dim is not None else "square (n, n)"
         raise ValueError(f"{name} must have shape {want}, got {tuple(shape)}")
-    v = _values(cov)
+    v = _values(name, cov)
     if v is None:
         return
     v = v.astype(np.float64)
@@ -114,15 +163,79 @@ def check_covariance(name: str, cov: Any, dim: int | None = None) -> None:
         raise ValueError(f"{name} must be positive definite; its smallest eigenvalue is {eig.min():.3g}") from None
 
 
+def check_covariances(name: str, covs: Any, dim: int | None = None) -> None:
+    """``covs [..., dim, dim]``: each a symmetric positive-definite matrix (:func:`check_covariance`),
+    the first bad one named by its index (values skipped for tracers)."""
+    shape = np.shape(covs)
+    if len(shape) < 2 or shape[-1] != shape[-2] or (dim is not None and shape[-1] != dim):
+        want = f"(..., {dim}, {dim})" if dim is not None else "(..., n, n)"
+        raise ValueError(f"{name} must have shape {want}, got {tuple(shape)}")
+    v = _values(name, covs)
+    if v is None:
+        return
+    for i in np.ndindex(shape[:-2]):
+        check_covariance(f"{name}[{', '.join(map(str, i))}]" if i else name, v[i], dim)
+
+
+def check_bounds(name: str, bounds: Any) -> tuple[float, float, float, float]:
+    """``bounds = (x_min, x_max, y_min, y_max)`` (m): four finite numbers of at most
+    :data:`MAX_MAGNITUDE`, with ``x_min < x_max`` and ``y_min < y_max``. Returns them as floats."""
+    v = np.asarray(as_array(name, bounds), dtype=np.float64)
+    if v.shape != (4,):
+        raise ValueError(f"{name} must be four numbers (x_min, x_max, y_min, y_max), got shape {v.shape}")
+    check_magnitude(name, v)
+    x0, x1, y0, y1 = (float(b) for b in v)
+    if not (x1 > x0 and y1 > y0):
+        raise ValueError(f"{name} must satisfy x_min < x_max and y_min < y_max, got {tuple(v.tolist())}")
+    return x0, x1, y0, y1
+
+
+def as_array(name: str, x: Any) -> Any:
+    """``x`` itself if it is an array (JAX, NumPy or a tracer), else ``np.asarray(x)``: a Python
+    list or tuple of numbers is accepted wherever an array is. Anything NumPy cannot read as
+    numbers raises ``ValueError`` naming ``name``."""
+    if isinstance(x, (jax.Array, np.ndarray, np.generic)):
+        return x
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be an array of numbers, got {type(x).__name__}: {x!r:.80}")
+    return a
+
+
+def float_array(name: str, x: Any, dtype: Any = None) -> jax.Array:
+    """``x`` (an array, list or tuple of numbers) as a JAX floating-point array.
+
+    ``dtype`` fixes the precision; without it a floating input keeps its own (float32 or
+    float64), integers become the default float, and float16/bfloat16 are promoted to float32
+    (the filters' arithmetic — log-weights, squared distances — is not meaningful in half
+    precision). Raises ``ValueError`` naming ``name`` for anything else.
+    """
+    a = as_array(name, x)
+    if dtype is None:
+        kind = np.dtype(a.dtype).kind if not isinstance(a, jax.Array) else a.dtype.kind
+        if kind != "f":
+            dtype = jax.dtypes.canonicalize_dtype(float)
+        elif np.dtype(a.dtype).itemsize < 4:
+            dtype = np.float32
+        else:
+            dtype = jax.dtypes.canonicalize_dtype(a.dtype)
+    return jnp.asarray(a, dtype)
+
+
 def check_slots(
     name: str, ids: Any, mask: Any, values: Any = None, ids_field: str = "ids", num_ids: int | None = None
 ) -> None:
-    """Fixed observation slots: integer ``ids``, a boolean (or integer, nonzero = valid) ``mask``,
+    """Fixed observation slots: integer ``ids``, a boolean (or integer 0/1) ``mask``,
     and, where ``mask`` is set, finite ``values [..., D]`` (the latter skipped for tracers). With
     ``num_ids`` only the slots whose id is in ``[0, num_ids)`` must be finite: the filters drop and
     count the others without reading them.
 
-    A float mask or float ids are refused (``0.5`` is neither valid nor invalid); a NaN or an
+    A float mask or float ids are refused (``0.5`` is neither valid nor invalid), and so is an
+    integer mask holding anything but 0 and 1 (a 0/2 mask is more likely a bug than a choice;
+    inside a caller's ``jit`` the filters read nonzero as set); a NaN or an
     infinity in a valid slot is refused with the first place it occurs, since a filter would
     carry it into every later estimate: mask such a slot out instead.
     """
@@ -130,8 +243,18 @@ def check_slots(
         dtype = np.result_type(getattr(x, "dtype", None) or np.asarray(x).dtype)
         allowed = "biu" if field == "mask" else "iu"
         if dtype.kind not in allowed:
-            what = "a boolean array (or integers, nonzero = valid)" if field == "mask" else "an integer array"
+            what = "a boolean array (or integers 0 and 1)" if field == "mask" else "an integer array"
             raise ValueError(f"{name}.{field} must be {what}, got dtype {dtype}")
+    mask_dtype = np.result_type(getattr(mask, "dtype", None) or np.asarray(mask).dtype)
+    if mask_dtype.kind in "iu" and is_concrete(mask):
+        m = np.asarray(mask)
+        odd = (m != 0) & (m != 1)
+        if odd.any():
+            where = tuple(int(i) for i in np.argwhere(odd)[0])
+            raise ValueError(
+                f"{name}.mask must be boolean or integers 0 and 1, got {int(m[where])} at index {where} "
+                f"({int(odd.sum())} such value(s))"
+            )
     if values is None or not is_concrete((mask, values)):
         return
     v = np.asarray(values)
@@ -139,10 +262,18 @@ def check_slots(
     if num_ids is not None:
         i = np.asarray(ids)
         valid = valid & (i >= 0) & (i < num_ids)
-    bad = valid & ~np.all(np.isfinite(v.reshape(v.shape[: np.ndim(mask)] + (-1,))), axis=-1)
+    rows = v.reshape(v.shape[: np.ndim(mask)] + (-1,))
+    bad = valid & ~np.all(np.isfinite(rows), axis=-1)
     if bad.any():
         where = tuple(int(i) for i in np.argwhere(bad)[0])
         raise ValueError(
             f"{name}.z holds NaN or infinite values in {int(bad.sum())} valid slot(s), the first at index "
             f"{where}: mask such slots out ({name}.mask False) instead of passing them"
+        )
+    huge = valid & np.any(np.abs(rows) > MAX_MAGNITUDE, axis=-1)
+    if huge.any():
+        where = tuple(int(i) for i in np.argwhere(huge)[0])
+        raise ValueError(
+            f"{name}.z holds values larger than {MAX_MAGNITUDE:g} in magnitude in {int(huge.sum())} valid "
+            f"slot(s), the first at index {where}: values are in SI units (m, rad)"
         )

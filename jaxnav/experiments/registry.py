@@ -73,8 +73,11 @@ def run(
     The per-run results are checkpointed in ``out_dir/NAME.runs.json`` after every
     chunk: calling :func:`run` again with the same arguments resumes an interrupted
     sweep and gives the same result as an uninterrupted one; ``fresh=True`` discards it
-    and starts again. ``workers`` chunks run at once (default
-    :func:`jaxnav.experiments.sweep.default_workers`).
+    and starts again. A checkpoint that cannot be resumed (damaged, of another sweep, of
+    another chunk size: :mod:`jaxnav.experiments.sweep`) raises a one-line ``ValueError``
+    naming it. ``workers`` chunks run at once (default
+    :func:`jaxnav.experiments.sweep.default_workers`). Runs that diverged are left out of
+    the summaries and counted in the result (``diverged_runs``) and its tables.
     """
     exp = get(name)
     cells = exp.cells(quick)

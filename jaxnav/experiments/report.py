@@ -14,7 +14,10 @@ Values that do not exist are written in two distinct ways: a reference value
 the source does not give (``None``) as :data:`NONE` ("–"), a score with
 nothing to score (NaN, see :mod:`jaxnav.experiments.stats`) as :data:`NA`
 ("n/a") or a study's more precise text such as ``"n/a (nothing mapped)"``;
-never as a number.
+never as a number. Runs left out of a summary are always said: ``"(2 runs n/a)"``
+for runs with nothing to score, ``"2 of 100 runs diverged"`` for runs whose
+filter diverged (:func:`unscored_note`, :func:`diverged_note`,
+:func:`diverged_line`).
 """
 
 from __future__ import annotations
@@ -23,7 +26,19 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["NONE", "NA", "Column", "number", "plus_minus", "interval", "unscored_note", "text", "markdown"]
+__all__ = [
+    "NONE",
+    "NA",
+    "Column",
+    "number",
+    "plus_minus",
+    "interval",
+    "unscored_note",
+    "diverged_note",
+    "diverged_line",
+    "text",
+    "markdown",
+]
 
 NONE = "–"
 """A value the source does not give (e.g. the thesis prints none)."""
@@ -50,25 +65,50 @@ def unscored_note(summary: dict) -> str:
     return f"{k} run{'s' if k != 1 else ''} {NA}" if k else ""
 
 
+def diverged_note(diverged: int, runs: int | None = None) -> str:
+    """``"k of R runs diverged"`` (``"k runs diverged"`` without ``runs``) when k > 0, else ``""``."""
+    k = int(diverged or 0)
+    if not k:
+        return ""
+    if runs is None:
+        return f"{k} run{'s' if k != 1 else ''} diverged"
+    return f"{k} of {runs} run{'s' if runs != 1 else ''} diverged"
+
+
+def diverged_line(label: str, diverged: int, runs: int) -> str:
+    """A table's footer line for a row with diverged runs (``""`` when none diverged)."""
+    note = diverged_note(diverged, runs)
+    return f"{label}: {note} (non-finite results), left out of every column" if note else ""
+
+
 def _with_note(text: str, summary: dict, note: bool) -> str:
-    k = unscored_note(summary) if note else ""
-    return f"{text} ({k})" if k else text
+    notes = [unscored_note(summary)] if note else []
+    notes.append(diverged_note(summary.get("diverged_runs", 0), summary.get("runs")))
+    joined = ", ".join(n for n in notes if n)
+    return f"{text} ({joined})" if joined else text
+
+
+def _nan_with_note(nan: str, summary: dict) -> str:
+    """``nan`` for a summary no run could score, with its diverged runs said (the text says why the rest had none)."""
+    k = diverged_note(summary.get("diverged_runs", 0), summary.get("runs"))
+    return f"{nan} ({k})" if k else nan
 
 
 def plus_minus(summary: dict, digits: int, nan: str = NA, note: bool = True) -> str:
     """``"mean ± half-interval"`` of ``{"mean", "ci95": [lo, hi]}``, then ``" (k runs n/a)"`` when runs had
-    no value (unless ``note=False``); ``nan`` when the mean is NaN (no run had a value)."""
+    no value (unless ``note=False``) and ``"k of R runs diverged"`` when the summary holds ``"diverged_runs"``
+    (and ``"runs"``); ``nan`` when the mean is NaN (no run had a value)."""
     if not _finite(summary["mean"]):
-        return nan
+        return _nan_with_note(nan, summary)
     lo, hi = summary["ci95"]
     return _with_note(f"{number(summary['mean'], digits)} ± {number((hi - lo) / 2, digits)}", summary, note)
 
 
 def interval(summary: dict, digits: int, nan: str = NA, note: bool = True) -> str:
-    """``"mean [lo, hi]"`` of ``{"mean", "ci95": [lo, hi]}``, then ``" (k runs n/a)"`` when runs had no
-    value (unless ``note=False``); ``nan`` when the mean is NaN (no run had a value)."""
+    """``"mean [lo, hi]"`` of ``{"mean", "ci95": [lo, hi]}``, with the notes of :func:`plus_minus`;
+    ``nan`` when the mean is NaN (no run had a value)."""
     if not _finite(summary["mean"]):
-        return nan
+        return _nan_with_note(nan, summary)
     lo, hi = summary["ci95"]
     return _with_note(f"{number(summary['mean'], digits)} [{number(lo, digits)}, {number(hi, digits)}]", summary, note)
 

@@ -8,14 +8,38 @@ appended to a JSON checkpoint, written atomically (temporary file, then
 rename), so an interrupted sweep keeps every finished chunk and
 :func:`sweep` called again with the same arguments resumes where it stopped.
 
-Keys: run ``r`` of cell ``c`` uses ``fold_in(fold_in(key, crc32(c)), r)``, so
-its result depends neither on the chunk size nor on ``R`` (the first 10 runs
-of a 100-run sweep are the 10 runs of a 10-run sweep) nor on the order of
-the cells. A resumed sweep therefore gives the same numbers as one that ran
-through. A checkpoint made with another seed, other cell definitions or
-another jaxnav version is refused rather than mixed in; after changing the
-code between two sweeps, start afresh (``fresh=True``, ``--fresh``): a
-checkpoint cannot tell that its cells now compute something else.
+Keys and chunks: run ``r`` of cell ``c`` uses ``fold_in(fold_in(key, crc32(c)), r)``,
+whatever the chunk size, ``R`` or the order of the cells, and chunk ``k`` of
+a cell always holds runs ``k·w … k·w + w − 1`` (``w`` the chunk width). A
+run's value is therefore bit for bit the same whenever its chunk has the same
+width: a resumed sweep gives the numbers of one that ran through, and a longer
+sweep extends a shorter one (its first 10 runs are the 10 runs of a 10-run
+sweep) as long as both evaluate chunks of the same width. Between widths a
+run agrees only to float32 rounding (XLA vectorises a chunk's runs in other
+ways for another width; a particle filter may amplify the difference), so the
+checkpoint records its width and a resume that would evaluate chunks of
+another width is refused. The width is ``chunk_size``, or ``R`` when a new
+sweep has fewer runs than a chunk (no padding is computed); a checkpoint
+keeps its width when it is resumed with the same ``chunk_size``.
+
+The checkpoint is a JSON object ``{"meta", "chunk_size", "cells"}``:
+``meta`` identifies the sweep (the cells' ids, the seed, the jaxnav version
+and the caller's ``meta``), ``chunk_size`` is the width of its chunks and
+``cells`` maps a cell's id to ``{field: [one value per run]}``, every field of
+a cell holding the same number of runs. A run's value is a number, ``true``
+or ``false``, or a list of them for an array-valued field; a non-finite float
+(NaN, ±inf: a run with nothing to score, or one that diverged) is written as
+``null`` and read back as NaN (standard JSON has no NaN). A checkpoint
+without ``chunk_size`` (written before it was recorded) is read when it holds
+every run asked for; adding runs to it is refused. The checkpoint is
+validated when it is loaded: an unreadable or truncated file, another
+structure, fields of uneven lengths, values that are not numbers or ``null``
+(strings, NaN or Infinity literals, numbers out of range), fields other than
+those its cells return, another seed, other cells, another jaxnav version or
+another chunk width are refused with a ``ValueError`` that names the file,
+never mixed in. After changing the code between two sweeps, start afresh
+(``fresh=True``, ``--fresh``): a checkpoint cannot tell that its cells now
+compute something else with the same fields.
 
 Parallelism: ``workers`` chunks run at once in threads (XLA releases the
 GIL), two by default on a two-core CPU, while the cells compile one after
@@ -23,8 +47,8 @@ the other in another thread: a cell's chunks start as soon as it is
 compiled. Results are still saved in chunk order, so the numbers and the
 checkpoint do not depend on ``workers``.
 
-Summaries: :func:`mean_ci` gives the mean and the 95 % Student-t interval
-``mean ± t_{0.975, R−1}·s/√R`` of the runs.
+Summaries of the runs (means, intervals, runs left out and counted) are in
+:mod:`jaxnav.experiments.stats`.
 """
 
 from __future__ import annotations
@@ -109,17 +133,235 @@ class Progress:
             print(file=sys.stderr)
 
 
-def _load(path: str | None, meta: dict) -> dict:
+_KEYS = ("meta", "chunk_size", "cells")
+"""The keys of a checkpoint, in the order they are written."""
+
+_FRESH = "pass --fresh (fresh=True) to discard it and start again"
+
+
+class _Invalid(Exception):
+    """Why a checkpoint cannot be used (turned into a ``ValueError`` naming its file)."""
+
+
+class _OtherSweep(_Invalid):
+    """The checkpoint is a valid one of another sweep (other seed, cells, version or ``meta``)."""
+
+
+class _OtherWidth(_Invalid):
+    """The checkpoint's chunks have another width than those this sweep would compute (``stored``)."""
+
+    def __init__(self, reason: str, stored: int):
+        super().__init__(reason)
+        self.stored = stored
+
+
+def _refused(path: str | None, reason: str, advice: str = _FRESH) -> ValueError:
+    """The one-line error of a checkpoint that cannot be used."""
+    where = "the sweep's runs" if path is None else path
+    return ValueError(f"{where}: {reason}; {advice}")
+
+
+_JSON_TYPES = {dict: "an object", list: "an array", str: "a string", bool: "true/false", type(None): "null"}
+
+
+def _json_type(value: Any) -> str:
+    """What ``value`` read from JSON is, in JSON's words ("an object", "a string", "a number", …)."""
+    return _JSON_TYPES.get(type(value), "a number")
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters (one line)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _literal(name: str) -> float:
+    raise _Invalid(f"it holds the non-standard JSON literal {name} (a non-finite run is written as null)")
+
+
+def _unique_keys(pairs: list) -> dict:
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        twice = next(k for k in keys if keys.count(k) > 1)
+        raise _Invalid(f"an object holds the key {_short(twice)} twice")
+    return dict(pairs)
+
+
+def _read(path: str) -> Any:
+    """The JSON in ``path`` (standard JSON only: no NaN or Infinity literals, no key given twice)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except UnicodeDecodeError:
+        raise _Invalid("it is not UTF-8 text, so not a sweep checkpoint") from None
+    if not text.strip():
+        raise _Invalid("the file is empty")
+    try:
+        return json.loads(text, parse_constant=_literal, object_pairs_hook=_unique_keys)
+    except json.JSONDecodeError as err:
+        raise _Invalid(
+            f"it is not valid JSON ({err.msg}: line {err.lineno}, column {err.colno}): a truncated or damaged file"
+        ) from None
+    except RecursionError:
+        raise _Invalid("it nests lists or objects too deeply to be a sweep checkpoint") from None
+
+
+_KINDS = {type(None): "null", bool: "bool", int: "int", float: "float"}
+"""What a run's value (or an entry of it) read from JSON may be."""
+
+
+def _decode(values: Any) -> np.ndarray:
+    """The array ``[R, ...]`` of one field's runs as stored: numbers, booleans or ``null`` (NaN), nested evenly."""
+    if not isinstance(values, list):
+        raise _Invalid(f"is {_json_type(values)}, not an array of runs")
+    try:
+        arr = np.array(values, dtype=object)
+    except ValueError:
+        raise _Invalid("holds runs of uneven shapes") from None
+    kinds = np.frompyfunc(lambda v: _KINDS.get(type(v), "?"), 1, 1)(arr) if arr.size else np.empty(arr.shape, object)
+    null, flag, whole = kinds == "null", kinds == "bool", kinds == "int"
+    odd = kinds == "?"
+    if odd.any():
+        first = arr[odd].flat[0]
+        if isinstance(first, list):
+            raise _Invalid("holds runs of uneven shapes")
+        raise _Invalid(f"holds {_short(first)}, {_json_type(first)}, where a number or null was expected")
+    if flag.any():
+        if not flag.all():
+            raise _Invalid("mixes true/false with numbers or null")
+        return arr.astype(bool)
+    try:
+        if whole.all():
+            return arr.astype(np.int64)
+        out = np.where(null, np.nan, arr).astype(np.float64)
+    except OverflowError:
+        raise _Invalid("holds a number out of range") from None
+    if not np.all(np.isfinite(out[~null])):
+        raise _Invalid("holds a number out of the float range (such as 1e999)")
+    return out
+
+
+def _encode(value: Any) -> list:
+    """One chunk's values of a field as JSON lists: a non-finite float becomes ``null``."""
+    a = np.asarray(value)
+    if a.dtype.kind == "f":
+        bad = ~np.isfinite(a)
+        if bad.any():
+            a = a.astype(object)
+            a[bad] = None
+    return a.tolist()
+
+
+def _check_cells(cells: Any, ids: Sequence[str]) -> None:
+    """``cells`` maps known cell ids to ``{field: runs}`` with the same number of runs in every field."""
+    if not isinstance(cells, dict):
+        raise _Invalid(f"its cells are {_json_type(cells)}, not an object")
+    for cell_id, fields in cells.items():
+        if cell_id not in ids:
+            raise _Invalid(f"it holds runs of the cell {_short(cell_id)}, which this sweep does not have")
+        if not isinstance(fields, dict):
+            raise _Invalid(f"cell {_short(cell_id)} is {_json_type(fields)}, not an object of fields")
+        counts = {}
+        for name, values in fields.items():
+            try:
+                counts[name] = len(_decode(values))
+            except _Invalid as err:
+                raise _Invalid(f"field {_short(name)} of cell {_short(cell_id)} {err}") from None
+        if len(set(counts.values())) > 1:
+            listed = ", ".join(f"{n} {_short(k)}" for k, n in counts.items())
+            raise _Invalid(f"the fields of cell {_short(cell_id)} hold different numbers of runs ({listed})")
+
+
+def _meta_difference(stored: dict, header: dict) -> str:
+    """What differs between a checkpoint's ``meta`` and this sweep's: ``key X in the file, Y here`` per key."""
+    missing = object()
+
+    def show(d: dict, k: str) -> str:
+        return _short(d[k]) if k in d else "none"
+
+    keys = [*header, *(k for k in stored if k not in header)]
+    diffs = [
+        f"{k} {show(stored, k)} in the file, {show(header, k)} here"
+        for k in keys
+        if stored.get(k, missing) != header.get(k, missing)
+    ]
+    return "; ".join(diffs)
+
+
+def _check(data: Any, header: dict) -> None:
+    """Refuse (``_Invalid``) a checkpoint that is not one of this sweep (module docstring)."""
+    if not isinstance(data, dict):
+        raise _Invalid(f"it holds {_json_type(data)}, not an object with the keys meta, chunk_size, cells")
+    missing = [k for k in _KEYS if k not in data and k != "chunk_size"]  # none: written before it was recorded
+    if missing:
+        raise _Invalid(f"it lacks the key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    extra = [k for k in data if k not in _KEYS]
+    if extra:
+        raise _Invalid(f"it holds the unknown key{'s' if len(extra) > 1 else ''} {', '.join(map(_short, extra))}")
+    if not isinstance(data["meta"], dict):
+        raise _Invalid(f"its meta is {_json_type(data['meta'])}, not an object")
+    if data["meta"] != header:
+        raise _OtherSweep(f"it holds a sweep with other settings ({_meta_difference(data['meta'], header)})")
+    width = data.get("chunk_size", 1)
+    if isinstance(width, bool) or not isinstance(width, int) or width < 1:
+        raise _Invalid(f"its chunk_size is {_short(width)}, not a positive integer")
+    _check_cells(data["cells"], header["cells"])
+
+
+def _load(path: str | None, header: dict) -> dict | None:
+    """The checkpoint at ``path``, validated against this sweep's ``header``; ``None`` when there is none."""
     if path is None or not os.path.exists(path):
-        return {"meta": meta, "cells": {}}
-    with open(path) as f:
-        data = json.load(f)
-    if data.get("meta") != meta:
-        raise ValueError(
-            f"{path} holds a sweep with other settings ({data.get('meta')!r}, not {meta!r}); "
-            "use another output directory, or start afresh (fresh=True; on the command line --fresh)"
-        )
+        return None
+    try:
+        data = _read(path)
+        _check(data, header)
+    except _OtherSweep as err:
+        raise _refused(path, str(err), "use another output directory, or " + _FRESH) from None
+    except _Invalid as err:
+        raise _refused(path, str(err)) from None
     return data
+
+
+def _kind(dtype: Any) -> str:
+    """``"b"`` booleans, ``"i"`` integers, ``"f"`` anything else (floats)."""
+    kind = np.dtype(dtype).kind
+    return "b" if kind == "b" else "i" if kind in "iu" else "f"
+
+
+def _check_fields(cell_id: str, stored: dict, expected: Any) -> None:
+    """The stored runs of a cell have the fields, per-run shapes and kinds its function returns (``expected``:
+    ``jax.eval_shape`` of one run)."""
+    want = expected._asdict() if hasattr(expected, "_asdict") else dict(expected)
+    if set(want) != set(stored):
+        raise _Invalid(
+            f"the runs of cell {_short(cell_id)} hold the fields {', '.join(map(_short, stored))}, but the cell "
+            f"returns {', '.join(map(_short, want))}: the checkpoint was written by other code"
+        )
+    for name, spec in want.items():
+        values = _decode(stored[name])
+        if values.shape[1:] != tuple(spec.shape):
+            raise _Invalid(
+                f"field {_short(name)} of cell {_short(cell_id)} holds runs of shape {values.shape[1:]}, but the cell "
+                f"returns shape {tuple(spec.shape)}: the checkpoint was written by other code"
+            )
+        have, need = _kind(values.dtype), _kind(spec.dtype)
+        if have != need and not (have == "i" and need == "f"):
+            text = {"b": "true/false", "i": "integers", "f": "numbers with fractions or null"}
+            raise _Invalid(f"field {_short(name)} of cell {_short(cell_id)} holds {text[have]}, not {text[need]}")
+
+
+def _chunk_width(requested: int, runs: int, stored: int | None) -> int:
+    """The width of the chunks still to run: this sweep's own, or the checkpoint's (``stored``) if it was
+    made with the same ``chunk_size``; another width is refused (``_OtherWidth``)."""
+    own = min(requested, runs)
+    if stored is None or stored in (own, requested):
+        return own if stored is None else stored
+    asked = f"{own}" if own == requested else f"{own} (--chunk {requested} with --runs {runs})"
+    raise _OtherWidth(
+        f"it holds runs computed in chunks of {stored} and this sweep would compute chunks of {asked}: "
+        "a run's float32 rounding depends on the chunk size, so its runs would not match",
+        stored,
+    )
 
 
 def _save(path: str | None, data: dict) -> None:
@@ -127,8 +369,8 @@ def _save(path: str | None, data: dict) -> None:
         return
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(data, f)
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump({k: data[k] for k in _KEYS}, f, allow_nan=False)
     os.replace(tmp, path)
 
 
@@ -182,7 +424,9 @@ def sweep(
         runs: R, runs per cell.
         key: master key.
         path: JSON checkpoint (``None``: keep nothing on disk).
-        chunk_size: runs per vmapped call.
+        chunk_size: runs per vmapped call (fewer for a new sweep of fewer runs). The checkpoint
+            records it, and resuming it with another chunk size that would compute chunks of
+            another width is refused (the runs would differ in float32 rounding; module docstring).
         progress: draw a progress bar over the runs.
         meta: anything that identifies the sweep (checked on resume with the
             cells' ids and the jaxnav version; R is not part of it: a longer sweep
@@ -200,8 +444,12 @@ def sweep(
         fresh: ignore (and overwrite) an existing checkpoint at ``path`` instead of resuming
             it: use it after changing the code, which the checkpoint cannot detect.
 
+    Raises:
+        ValueError: bad arguments, or a checkpoint at ``path`` that cannot be resumed (module
+            docstring); the message, one line, names the file and says to pass ``--fresh``.
+
     Returns:
-        ``{cell_id: {field: array [R, ...]}}`` (NumPy).
+        ``{cell_id: {field: array [R, ...]}}`` (NumPy; a non-finite float is NaN).
     """
     runs = int(runs)
     if runs < 1:
@@ -214,8 +462,6 @@ def sweep(
     workers = default_workers() if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
-    # never pad a sweep of fewer runs than a chunk up to a whole chunk (the padding is computed)
-    chunk = min(chunk, runs)
     cells = [(c[0], c[1], tuple(c[2]) if len(c) > 2 else ()) for c in cells]
     ids = [c for c, _, _ in cells]
     if len(set(ids)) != len(ids):
@@ -228,20 +474,41 @@ def sweep(
         "jaxnav": __version__,
         **(meta or {}),
     }
-    data = {"meta": header, "cells": {}} if fresh else _load(path, header)
+    header = json.loads(json.dumps(header))  # as it reads back from the file (tuples are lists)
+    data = None if fresh else _load(path, header)
+    data = data or {"meta": header, "chunk_size": None, "cells": {}}
+    done = {cell_id: _runs_stored(data["cells"].setdefault(cell_id, {})) for cell_id in ids}
+    try:
+        for cell_id, fn, shared in cells:
+            if done[cell_id]:
+                _check_fields(cell_id, data["cells"][cell_id], _one_run_shape(fn, cell_key(key, cell_id), shared))
+        todo = any(n < runs for n in done.values())
+        stored = data.get("chunk_size") if any(done.values()) and todo else None
+        if any(done.values()) and todo and "chunk_size" not in data:
+            raise _Invalid(
+                "it was written before checkpoints recorded their chunk size, so runs added to it could round "
+                "differently from its own (it is read as it is when it holds every run asked for)"
+            )
+        width = _chunk_width(chunk, runs, stored)
+    except _OtherWidth as err:
+        advice = f"resume with --chunk {err.stored} (chunk_size={err.stored}), or {_FRESH}"
+        raise _refused(path, str(err), advice) from None
+    except _Invalid as err:
+        raise _refused(path, str(err)) from None
+    if todo:
+        data["chunk_size"] = width
     bar = Progress(runs * len(cells), "Monte Carlo", progress)
 
-    # Every chunk still to run, in order: (cell_id, start, stop, keys padded to a full chunk: one compilation).
+    # Every chunk still to run, in order: (cell_id, start, stop, keys of a full chunk: one compilation, runs
+    # of the chunk already stored). Chunk k holds runs k·width … k·width + width − 1 whatever was stored.
     work = []
     for cell_id, _fn, _shared in cells:
-        stored = data["cells"].setdefault(cell_id, {})
-        done = len(next(iter(stored.values()))) if stored else 0
-        bar.update(min(done, runs))
+        bar.update(min(done[cell_id], runs))
         base = cell_key(key, cell_id)
-        for start in range(done, runs, chunk):
-            idx = np.arange(start, start + chunk)
+        for start in range(done[cell_id] // width * width, runs, width):
+            idx = np.arange(start, start + width)
             keys = jax.vmap(lambda r: jax.random.fold_in(base, r))(idx)
-            work.append((cell_id, start, min(start + chunk, runs), keys))
+            work.append((cell_id, start, min(start + width, runs), keys, max(done[cell_id] - start, 0)))
     shared_of = {cell_id: (fn, shared) for cell_id, fn, shared in cells}
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="jaxnav-sweep")
     # The cells compile one after the other in their own thread, in the order of the chunks,
@@ -251,21 +518,21 @@ def sweep(
     compiler = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxnav-compile")
     try:
         compiled = {}
-        for cell_id, _, _, keys in work:
+        for cell_id, _, _, keys, _ in work:
             if cell_id not in compiled:
                 fn, shared = shared_of[cell_id]
                 compiled[cell_id] = compiler.submit(
                     compiled_vmap, fn, keys, shared=shared, mode=batching, compiler_options=compiler_options
                 )
-        pending = [pool.submit(_evaluate, compiled[c], keys, shared_of[c][1]) for c, _, _, keys in work]
-        for (cell_id, start, stop, _), future in zip(work, pending):
+        pending = [pool.submit(_evaluate, compiled[c], keys, shared_of[c][1]) for c, _, _, keys, _ in work]
+        for (cell_id, start, stop, _, skip), future in zip(work, pending):
             result = future.result()
             fields = result._asdict() if hasattr(result, "_asdict") else dict(result)
             stored = data["cells"][cell_id]
             for name, value in fields.items():
-                stored.setdefault(name, []).extend(np.asarray(value)[: stop - start].tolist())
+                stored.setdefault(name, []).extend(_encode(np.asarray(value)[skip : stop - start]))
             _save(path, data)
-            bar.update(stop - start)
+            bar.update(stop - start - skip)
             if on_chunk is not None:
                 on_chunk(cell_id, stop)
     finally:
@@ -274,6 +541,20 @@ def sweep(
         bar.close()
     out: dict[str, dict[str, np.ndarray]] = {}
     for cell_id in ids:
-        stored = data["cells"][cell_id]
-        out[cell_id] = {name: np.asarray(values[:runs]) for name, values in stored.items()}
+        out[cell_id] = {}
+        for name, values in data["cells"][cell_id].items():
+            try:
+                out[cell_id][name] = _decode(values[:runs])
+            except _Invalid as err:
+                raise _refused(path, f"field {_short(name)} of cell {_short(cell_id)} {err}") from None
     return out
+
+
+def _runs_stored(fields: dict) -> int:
+    """The number of runs a validated cell of a checkpoint holds."""
+    return len(next(iter(fields.values()))) if fields else 0
+
+
+def _one_run_shape(fn: Callable, key: jax.Array, shared: tuple) -> Any:
+    """What ``fn`` returns for one run (``jax.eval_shape``: traced, not compiled or run)."""
+    return jax.eval_shape(lambda k: fn(k, *shared), key)

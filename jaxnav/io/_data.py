@@ -4,7 +4,8 @@ The datasets are never copied into the repository. A loader finds its folder
 ``<data>/<dataset>`` with ``<data>`` taken, in this order, from an explicit
 ``root``, the environment variable :data:`ENV_VAR`, ``../shared/data``
 relative to the current directory, and ``../shared/data`` relative to the
-repository root.
+repository root (only when jaxnav runs from a source checkout, not from an
+installed copy).
 """
 
 from __future__ import annotations
@@ -20,21 +21,60 @@ _REPO_ROOT = Path(__file__).resolve().parents[2]
 _DEFAULT_RELATIVE = Path("..") / "shared" / "data"
 
 
+class DataNotFoundError(FileNotFoundError):
+    """A dataset folder that is in none of the places tried.
+
+    Attributes:
+        title: the dataset's name in words.
+        dataset: the name of its folder.
+        tried: the folders tried, resolved.
+        source: where to get the data (a download page).
+    """
+
+    def __init__(self, title: str, dataset: str, tried: list[str], source: str) -> None:
+        self.title, self.dataset, self.tried, self.source = title, dataset, tried, source
+        super().__init__(self.explain(f"pass root=<folder holding {dataset}/>"))
+
+    def explain(self, how_to_point: str) -> str:
+        """The message, with ``how_to_point`` saying how to name the data folder (an argument, an option)."""
+        return (
+            f"{self.title} not found at {' or '.join(self.tried)}: {how_to_point} or set the environment "
+            f"variable {ENV_VAR} to it; the data can be downloaded from {self.source}"
+        )
+
+
+def _source_checkout() -> Path | None:
+    """The repository root when jaxnav runs from a source checkout, else None (an installed copy)."""
+    if "site-packages" in _REPO_ROOT.parts or not (_REPO_ROOT / "pyproject.toml").is_file():
+        return None
+    return _REPO_ROOT
+
+
 def data_candidates(root: str | os.PathLike | None) -> list[Path]:
-    """The data folders to try, in order (see the module docstring)."""
+    """The data folders to try, in order and without repeats (see the module docstring)."""
     if root is not None:
         return [Path(root)]
     env = os.environ.get(ENV_VAR)
     if env:
         return [Path(env)]
-    return [Path.cwd() / _DEFAULT_RELATIVE, _REPO_ROOT / _DEFAULT_RELATIVE]
+    checkout = _source_checkout()
+    bases = [Path.cwd()] + ([checkout] if checkout is not None else [])
+    out: list[Path] = []
+    for base in bases:
+        folder = (base / _DEFAULT_RELATIVE).resolve()
+        if folder not in out:
+            out.append(folder)
+    return out
 
 
-def find_dataset(root: str | os.PathLike | None, dataset: str, is_dataset: Callable[[Path], bool], title: str) -> Path:
+def find_dataset(
+    root: str | os.PathLike | None, dataset: str, is_dataset: Callable[[Path], bool], title: str, source: str
+) -> Path:
     """The folder of ``dataset``: ``<data>/<dataset>`` or ``<data>`` itself, the first where ``is_dataset`` holds.
 
     Raises:
-        FileNotFoundError: naming the paths tried and the environment variable.
+        DataNotFoundError: naming the paths tried, the environment variable and ``source``,
+            the page the data can be downloaded from.
     """
     tried = []
     for base in data_candidates(root):
@@ -42,7 +82,4 @@ def find_dataset(root: str | os.PathLike | None, dataset: str, is_dataset: Calla
             if is_dataset(folder):
                 return folder.resolve()
         tried.append(str((base / dataset).resolve()))
-    raise FileNotFoundError(
-        f"{title} not found at {' or '.join(tried)}. Pass root=<folder holding {dataset}/> or set the "
-        f"environment variable {ENV_VAR} to it."
-    )
+    raise DataNotFoundError(title, dataset, tried, source)

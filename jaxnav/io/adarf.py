@@ -74,6 +74,7 @@ import functools
 import gzip
 import math
 import os
+import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -123,6 +124,16 @@ BORESIGHT_YAW = math.pi / 2
 """The antenna looks along +y, towards the tags (rad)."""
 
 _COLUMNS = {"epc": "epc", "frequency": "frequency", "RSSI": "rssi", "phase": "phase", "x": "x"}
+_NUMERIC = ("frequency", "RSSI", "phase", "x")
+"""The numeric columns read, in the order of the parsed ``[R, 4]`` table."""
+_TRUTH_COLUMNS = ("experiment", "epc", "x_m", "y_m")
+
+_SOURCE = (
+    "https://github.com/dapowan/AdaRF (its dataset/1/test/<experiment>/<i>.csv files, each gzipped into "
+    "dataset1_test/<experiment>/<i>.csv.gz; tag_ground_truth.csv from its dataset/config.txt, see jaxnav.io.adarf)"
+)
+_UNREADABLE = (OSError, EOFError, zlib.error, csv.Error, UnicodeDecodeError)
+"""What reading a truncated or corrupted ``.csv.gz`` raises."""
 
 
 class AdaRFExperiment(NamedTuple):
@@ -169,7 +180,7 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
     Raises:
         FileNotFoundError: naming the paths tried and the environment variable.
     """
-    return find_dataset(root, DATASET, _is_dataset, "The AdaRF UHF-RFID data")
+    return find_dataset(root, DATASET, _is_dataset, "The AdaRF UHF-RFID data", _SOURCE)
 
 
 def available_experiments(root: str | os.PathLike | None = None) -> tuple[str, ...]:
@@ -192,9 +203,23 @@ def ground_truth(root: str | os.PathLike | None = None) -> dict[str, np.ndarray]
 def _ground_truth(folder: str) -> dict[str, np.ndarray]:
     path = Path(folder) / "tag_ground_truth.csv"
     table: dict[str, dict[str, tuple[float, float]]] = {}
-    with open(path, encoding="utf-8-sig", newline="") as fh:
-        for row in csv.DictReader(fh):
-            table.setdefault(row["experiment"], {})[row["epc"]] = (float(row["x_m"]), float(row["y_m"]))
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise ValueError(f"{path}: empty file")
+            missing = [c for c in _TRUTH_COLUMNS if c not in header]
+            if missing:
+                raise ValueError(f"{path}: missing columns {missing} (header {header})")
+            at = [header.index(c) for c in _TRUTH_COLUMNS]
+            for row in reader:
+                if not row:
+                    continue
+                name, epc, x, y = _truth_row(path, reader.line_num, header, row, at)
+                table.setdefault(name, {})[epc] = (x, y)
+    except _UNREADABLE as err:
+        raise ValueError(f"{path}: cannot be read as CSV text ({err})") from None
     out = {}
     for name, tags in table.items():
         missing = [e for e in TARGET_EPCS if e not in tags]
@@ -204,13 +229,123 @@ def _ground_truth(folder: str) -> dict[str, np.ndarray]:
     return out
 
 
-def _read_point(path: Path) -> tuple[list[list[str]], list[str]]:
-    with gzip.open(path, "rt", encoding="utf-8-sig", newline="") as fh:  # utf-8-sig: the files start with a BOM
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"{path}: empty file")
-        return list(reader), header
+def _truth_row(
+    path: Path, line: int, header: list[str], row: list[str], at: list[int]
+) -> tuple[str, str, float, float]:
+    """``(experiment, epc, x, y)`` of one ground-truth line; a short line or a bad number is refused with its place."""
+    if len(row) <= max(at):
+        raise ValueError(
+            f"{path}, line {line}: {len(row)} field(s), the header has {len(header)}; the line is cut short"
+        )
+    name, epc = row[at[0]], row[at[1]]
+    xy = tuple(_finite(path, line, col, row[i]) for col, i in zip(_TRUTH_COLUMNS[2:], at[2:]))
+    return name, epc, xy[0], xy[1]
+
+
+def _finite(path: Path, line: int, column: str, text: str) -> float:
+    """``text`` as a finite float, or a ValueError naming the file, line and column."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{path}, line {line}, column {column!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{path}, line {line}, column {column!r}: {text!r} is not a finite number")
+    return value
+
+
+def _read_point(path: Path) -> tuple[list[list[str]], list[int], list[str]]:
+    """The rows of one aperture file, the 1-based line of each, and the header."""
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    line = 0
+    try:
+        with gzip.open(path, "rt", encoding="utf-8-sig", newline="") as fh:  # utf-8-sig: the files start with a BOM
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            line = reader.line_num
+            if header is None:
+                raise ValueError(f"{path}: empty file")
+            for row in reader:
+                line = reader.line_num
+                if row:  # a blank line holds no read
+                    rows.append(row)
+                    lines.append(line)
+    except _UNREADABLE as err:
+        raise ValueError(
+            f"{path}: unreadable after line {line} ({type(err).__name__}: {err}); the file is truncated or "
+            "corrupted: copy it again"
+        ) from None
+    return rows, lines, header
+
+
+def _parse_point(
+    path: Path, rows: list[list[str]], lines: list[int], header: list[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """One aperture file's target reads: ``(tag [R], values [R, 4] in _NUMERIC order, line [R], stray count)``.
+
+    A row too short for the columns read, a field that is not a number or a NaN / infinite value
+    is refused with the file, the line and the column.
+    """
+    missing = [c for c in _COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing columns {missing} (header {header})")
+    epc_at = header.index("epc")
+    at = [header.index(c) for c in _NUMERIC]
+    need = max(at + [epc_at]) + 1
+    epc_index = {e: i for i, e in enumerate(TARGET_EPCS)}
+    tags: list[int] = []
+    values: list[list[str]] = []
+    where: list[int] = []
+    stray = 0
+    for row, line in zip(rows, lines):
+        if len(row) < need:
+            raise ValueError(
+                f"{path}, line {line}: {len(row)} field(s), the header has {len(header)}; the line is cut short"
+            )
+        tag = epc_index.get(row[epc_at])
+        if tag is None:
+            stray += 1
+            continue
+        tags.append(tag)
+        values.append([row[i] for i in at])
+        where.append(line)
+    try:
+        table = np.array(values, np.float64).reshape(-1, len(_NUMERIC))
+    except ValueError:  # find the field that is not a number
+        for fields, line in zip(values, where):
+            for column, text in zip(_NUMERIC, fields):
+                _finite(path, line, column, text)
+        raise
+    bad = ~np.isfinite(table)
+    if bad.any():
+        r, c = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(
+            f"{path}, line {where[r]}, column {_NUMERIC[c]!r}: {values[r][c]!r} is not a finite number "
+            f"({int(bad.any(axis=1).sum())} line(s) hold NaN or infinite values)"
+        )
+    return np.asarray(tags, np.int64), table, np.asarray(where, np.int64), stray
+
+
+def _channels(path: Path, freq: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """The channel index (0–7) of each read's frequency (Hz); another frequency is refused with its line."""
+    channel = np.clip(np.rint((freq - CHANNELS_HZ[0]) / 0.5e6), 0, len(CHANNELS_HZ) - 1).astype(np.int64)
+    off = np.flatnonzero(np.rint(freq) != np.rint(CHANNELS_HZ[channel]))
+    if off.size:
+        raise ValueError(
+            f"{path}, line {line[off[0]]}: frequency {freq[off[0]]:.0f} Hz is not one of the 8 channels "
+            f"{CHANNELS_HZ.tolist()}"
+        )
+    return channel
+
+
+def _check_phase(path: Path, phase: np.ndarray, line: np.ndarray) -> None:
+    """The reader reports phases in [0, 2π] (its 12-bit phase reaches 2π itself); anything else is refused."""
+    off = np.flatnonzero((phase < 0) | (phase > 2 * math.pi + 1e-9))
+    if off.size:
+        raise ValueError(
+            f"{path}, line {line[off[0]]}, column 'phase': {float(phase[off[0]])!r} rad is outside [0, 2π] "
+            f"({off.size} read(s)) — not the reader convention this loader expects"
+        )
 
 
 @functools.lru_cache(maxsize=4)
@@ -218,51 +353,34 @@ def _load(folder: str, name: str) -> AdaRFExperiment:
     truth = _ground_truth(folder)
     if name not in truth:
         raise ValueError(f"unknown experiment {name!r}: the ground truth has {sorted(truth)}")
-    epc_index = {e: i for i, e in enumerate(TARGET_EPCS)}
-    channel_index = {int(round(f)): i for i, f in enumerate(CHANNELS_HZ)}
-    cols: dict[str, list] = {k: [] for k in ("tag", "point", "x", "channel", "rssi", "phase")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("tag", "point", "x", "channel", "rssi", "phase")}
     stray = 0
     for p in range(NUM_POINTS):
         path = Path(folder) / _SUBSET / name / f"{p}.csv.gz"
         if not path.is_file():
             raise FileNotFoundError(f"{path} is missing: experiment {name} needs files 0..{NUM_POINTS - 1}")
-        rows, header = _read_point(path)
-        missing = [c for c in _COLUMNS if c not in header]
-        if missing:
-            raise ValueError(f"{path}: missing columns {missing} (header {header})")
-        at = {c: header.index(c) for c in _COLUMNS}
-        n0 = len(cols["tag"])
-        for row in rows:
-            tag = epc_index.get(row[at["epc"]])
-            if tag is None:
-                stray += 1
-                continue
-            freq = int(round(float(row[at["frequency"]])))
-            if freq not in channel_index:
-                raise ValueError(f"{path}: frequency {freq} Hz is not one of the 8 channels {CHANNELS_HZ.tolist()}")
-            cols["tag"].append(tag)
-            cols["channel"].append(channel_index[freq])
-            cols["rssi"].append(float(row[at["RSSI"]]))
-            cols["phase"].append(float(row[at["phase"]]))
-            cols["x"].append(float(row[at["x"]]))
-        xs = np.asarray(cols["x"][n0:])
-        if xs.size == 0:
+        tag, values, line, n_stray = _parse_point(path, *_read_point(path))
+        stray += n_stray
+        if tag.size == 0:
             raise ValueError(f"{path}: no reads of the target tags")
+        freq, rssi, phase, xs = values.T
         if np.ptp(xs) > 1e-6:
             raise ValueError(f"{path}: one file must hold one aperture point, got antenna x {np.unique(xs)}")
-        cols["point"].extend([p] * xs.size)
-    phase = np.asarray(cols["phase"], np.float64)
-    # The reader's 12-bit phase reaches 2π itself (155 reads of 181218-01): the same angle as 0.
-    if np.any((phase < 0) | (phase > 2 * math.pi + 1e-9)):
-        raise ValueError(f"{name}: phases outside [0, 2π] — not the reader convention this loader expects")
-    phase = np.mod(phase, 2 * math.pi)
+        _check_phase(path, phase, line)
+        parts["tag"].append(tag)
+        parts["channel"].append(_channels(path, freq, line))
+        parts["rssi"].append(rssi)
+        parts["phase"].append(phase)
+        parts["x"].append(xs)
+        parts["point"].append(np.full(tag.size, p, np.int64))
+    cols = {k: np.concatenate(v) for k, v in parts.items()}
     arrays = dict(
-        tag=np.asarray(cols["tag"], np.int64),
-        point=np.asarray(cols["point"], np.int64),
-        antenna_x=np.asarray(cols["x"], np.float64),
-        channel=np.asarray(cols["channel"], np.int64),
-        rssi_dbm=np.asarray(cols["rssi"], np.float64),
-        phase=phase,
+        tag=cols["tag"],
+        point=cols["point"],
+        antenna_x=cols["x"],
+        channel=cols["channel"],
+        rssi_dbm=cols["rssi"],
+        phase=np.mod(cols["phase"], 2 * math.pi),  # the reader's 2π (155 reads of 181218-01) is the angle 0
     )
     for a in arrays.values():
         a.flags.writeable = False
@@ -278,7 +396,10 @@ def load_experiment(name: str, root: str | os.PathLike | None = None) -> AdaRFEx
 
     Raises:
         FileNotFoundError: the data folder or a file is missing.
-        ValueError: an unknown experiment, or a file that does not look like the documented format.
+        ValueError: an unknown experiment; or a file that does not look like the documented format:
+            truncated or corrupted, a line cut short, a field that is not a number, a NaN or
+            infinite value, a phase outside [0, 2π] or an unknown frequency (the message names
+            the file, its 1-based line and the column).
     """
     return _load(str(data_dir(root)), str(name))
 

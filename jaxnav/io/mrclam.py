@@ -84,6 +84,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -115,6 +116,8 @@ __all__ = [
 
 DATASET = "utias-mrclam-dataset7"
 """Name of the dataset folder inside the data folder."""
+
+_SOURCE = "http://asrl.utias.utoronto.ca/datasets/mrclam/ (the MRCLAM_Dataset7 files, unchanged)"
 
 
 NUM_ROBOTS = 5  # MRCLAM robots are subjects 1..5
@@ -264,6 +267,7 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
         DATASET,
         lambda folder: (folder / "Barcodes.dat").is_file() and (folder / "Landmark_Groundtruth.dat").is_file(),
         "UTIAS MRCLAM Dataset 7",
+        _SOURCE,
     )
 
 
@@ -277,16 +281,59 @@ def _robot_files(folder: Path, robot: int) -> tuple[Path, Path, Path]:
     return tuple(folder / f"Robot{robot}_{kind}.dat" for kind in ("Odometry", "Measurement", "Groundtruth"))
 
 
+def _data_lines(path: Path):
+    """``(line number, fields)`` of each line holding data: ``#`` starts a comment, blank lines are skipped."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for number, line in enumerate(fh, start=1):
+            fields = line.split("#", 1)[0].split()
+            if fields:
+                yield number, fields
+
+
+def _data_line_numbers(path: Path) -> np.ndarray:
+    """The 1-based file line of each data row (to name the line of a bad row)."""
+    return np.array([number for number, _ in _data_lines(path)], np.int64)
+
+
+def _first_bad_line(path: Path, columns: int) -> str | None:
+    """Where a table of ``columns`` numbers per line breaks, as a message; None if every line parses."""
+    for number, fields in _data_lines(path):
+        if len(fields) != columns:
+            return f"{path}, line {number}: expected {columns} numbers, found {len(fields)} ({' '.join(fields)!r})"
+        for col, text in enumerate(fields, start=1):
+            try:
+                float(text)
+            except ValueError:
+                return f"{path}, line {number}, column {col}: {text!r} is not a number"
+    return None
+
+
 def _read(path: Path, columns: int) -> np.ndarray:
-    table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+    """The ``[rows, columns]`` float64 table of a data file; every value finite.
+
+    Raises:
+        ValueError: naming the file and the 1-based line (and column) of the first bad value.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file is refused below, with its name
+            table = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+    except ValueError as err:  # also a byte that is not UTF-8 (UnicodeDecodeError)
+        raise ValueError(
+            _first_bad_line(path, columns) or f"{path}: not a table of {columns} numbers ({err})"
+        ) from None
+    if table.shape[0] == 0:
+        raise ValueError(f"{path}: no data lines (the file is empty or holds only comments)")
     if table.shape[1] != columns:
-        raise ValueError(f"{path}: expected {columns} columns, found {table.shape[1]}")
+        raise ValueError(
+            _first_bad_line(path, columns) or f"{path}: expected {columns} columns, found {table.shape[1]}"
+        )
     bad = ~np.isfinite(table)
     if bad.any():  # a filter would carry one NaN or infinity into every later estimate
         row, col = (int(i) for i in np.argwhere(bad)[0])
         raise ValueError(
-            f"{path}: {int(bad.any(axis=1).sum())} row(s) hold NaN or infinite values, the first is data row "
-            f"{row + 1}, column {col + 1} ({table[row, col]}); remove or correct such rows"
+            f"{path}, line {_data_line_numbers(path)[row]}, column {col + 1}: {table[row, col]} is not a finite "
+            f"number ({int(bad.any(axis=1).sum())} line(s) hold NaN or infinite values); remove or correct such lines"
         )
     return table
 
@@ -300,9 +347,19 @@ def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(out)
 
 
-def _check_sorted(path: Path, t: np.ndarray) -> None:
-    if np.any(np.diff(t) < 0):
-        raise ValueError(f"{path}: time stamps are not in non-decreasing order")
+def _check_times(path: Path, t: np.ndarray, strict: bool) -> None:
+    """Refuse time stamps that go backwards (or, ``strict``, repeat), naming the file line."""
+    step = np.diff(t)
+    bad = np.flatnonzero(step <= 0 if strict else step < 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        lines = _data_line_numbers(path)
+        order = "is not later than" if strict else "is earlier than"
+        raise ValueError(
+            f"{path}, line {lines[i]}: time {float(t[i])!r} s {order} {float(t[i - 1])!r} s on line {lines[i - 1]} "
+            f"({bad.size} such line(s)); the time stamps must {'increase' if strict else 'not decrease'} "
+            "(a clock that jumps back cannot be aligned with the other files)"
+        )
 
 
 @functools.lru_cache(maxsize=4)
@@ -322,14 +379,13 @@ def _load_robot(folder: str, robot: int) -> MRCLAMRobot:
     barcode_to_subject, landmark_map = _load_map(folder)
     odo_path, meas_path, gt_path = _robot_files(Path(folder), robot)
     odo = _read(odo_path, 3)
-    _check_sorted(odo_path, odo[:, 0])
     if odo.shape[0] < 2:
-        raise ValueError(f"{odo_path}: need at least two odometry readings")
+        raise ValueError(f"{odo_path}: need at least two odometry readings, found {odo.shape[0]}")
+    _check_times(odo_path, odo[:, 0], strict=False)
     gt = _read(gt_path, 4)
-    if np.any(np.diff(gt[:, 0]) <= 0):
-        raise ValueError(f"{gt_path}: time stamps are not strictly increasing")
+    _check_times(gt_path, gt[:, 0], strict=True)
     meas = _read(meas_path, 4)
-    meas = meas[np.argsort(meas[:, 0], kind="stable")]
+    _check_times(meas_path, meas[:, 0], strict=False)
 
     barcode = np.rint(meas[:, 1]).astype(np.int64)
     subject = np.array([barcode_to_subject.get(int(b), -1) for b in barcode], dtype=np.int64)
@@ -355,7 +411,9 @@ def load_robot(robot: int, root: str | os.PathLike | None = None) -> MRCLAMRobot
         root: data folder (see :func:`data_dir`).
 
     Raises:
-        ValueError: ``robot`` is not an integer in 1–5.
+        ValueError: ``robot`` is not an integer in 1–5; or a file holds a line that is not the
+            right count of numbers, a NaN or infinite value, or a time stamp that goes backwards
+            (the message names the file and its 1-based line).
         FileNotFoundError: the dataset folder, or this robot's files, are absent.
     """
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or not 1 <= robot <= NUM_ROBOTS:
@@ -440,6 +498,9 @@ def to_filter_steps(
     if dtype.kind != "f" or jax.dtypes.canonicalize_dtype(dtype) != dtype:
         raise ValueError(f"dtype must be a float dtype JAX can hold now (float64 needs jax.enable_x64), got {dtype}")
     odo, gt, meas = robot_data.odometry, robot_data.ground_truth, robot_data.measurements
+    for stream in (odo, gt, meas):  # load_robot refuses these; a hand-made MRCLAMRobot may hold them
+        for field, values in stream._asdict().items():
+            check_finite(f"robot_data.{type(stream).__name__.lower()}.{field}", values)
 
     offset = 0.0 if t_start is None else float(t_start)
     t0 = float(odo.t[0]) + offset
@@ -464,9 +525,16 @@ def to_filter_steps(
 
     # controls: exact zero-order-hold integrals of v and ω over each step
     t_odo = odo.t - t0
-    dist = np.diff(_zoh_integral(t_odo, odo.v, rel))
-    turn = np.diff(_zoh_integral(t_odo, odo.omega, rel))
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below
+        dist = np.diff(_zoh_integral(t_odo, odo.v, rel))
+        turn = np.diff(_zoh_integral(t_odo, odo.omega, rel))
     controls = np.stack([dist / dt, turn / dt, np.full(num_steps, dt)], axis=-1)
+    overflow = np.flatnonzero(~np.all(np.isfinite(controls), axis=1))
+    if overflow.size:  # finite readings whose integral overflows float64
+        raise ValueError(
+            f"the odometry integrates to non-finite controls from step {int(overflow[0])} "
+            f"(time {times[overflow[0]]!r} s): its velocities are too large"
+        )
 
     # measurements: nearest step end time, in time order, K slots per step
     landmark_map = robot_data.landmarks

@@ -337,6 +337,7 @@ step, run = filter_api.build(
         name="augmented MCL",
         kernel=kernel,
         config_type=AugmentedMCLConfig,
+        state_type=AugmentedMCLState,
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_choice, check_covariance, check_finite, check_shape
+from jaxnav.core.validation import check_choice, check_covariance, check_magnitude, check_shape
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
 
@@ -97,6 +97,8 @@ class KalmanInfo(NamedTuple):
         num_ignored: slots whose landmark id is not in the map.
         num_gated: valid slots rejected by the gate.
         cholesky_failed: bool, a UKF factorisation fell back to the diagonal (EKF: always False).
+        degenerate: bool, the step's result was not finite and was not applied: the state is carried
+            over unchanged (:func:`jaxnav.core.kalman.finite_or_previous`).
     """
 
     estimate: jax.Array
@@ -107,6 +109,7 @@ class KalmanInfo(NamedTuple):
     num_ignored: jax.Array
     num_gated: jax.Array
     cholesky_failed: jax.Array
+    degenerate: jax.Array
 
 
 # ---------------------------------------------------------------------------
@@ -125,7 +128,7 @@ def validate_state(state: KalmanState) -> None:
     if not isinstance(state, KalmanState):
         raise ValueError(f"state must be a KalmanState, got {type(state).__name__}")
     check_shape("state.mean", state.mean, (3,))
-    check_finite("state.mean", state.mean)
+    check_magnitude("state.mean", state.mean)
     check_covariance("state.cov", state.cov, 3)
 
 
@@ -167,17 +170,19 @@ def kalman_step(
     r = jnp.diag(params.sensor.sd**2)
     res = update(prior.mean, prior.cov, obs.z, lm.predict, r, positions, valid=valid)
     num_gated = jnp.sum(valid & ~res.accepted).astype(jnp.int32)
+    new, degenerate = kalman.finite_or_previous(KalmanState(res.mean, res.cov), state)
     info = KalmanInfo(
-        res.mean,
-        res.cov,
-        res.nis,
-        res.accepted,
-        res.log_likelihood,
+        new.mean,
+        new.cov,
+        jnp.where(degenerate, 0.0, res.nis),
+        res.accepted & ~degenerate,
+        jnp.where(degenerate, -jnp.inf, res.log_likelihood),
         num_ignored,
         num_gated,
         failed_predict | res.cholesky_failed,
+        degenerate,
     )
-    return KalmanState(res.mean, res.cov), info
+    return new, info
 
 
 def _ekf_predict(mean, cov, f, q):
@@ -207,6 +212,7 @@ step, run = filter_api.build(
         name="EKF",
         kernel=kernel,
         config_type=EKFConfig,
+        state_type=KalmanState,
         check_params=validate_params,
         check_state=lambda config, params, state: validate_state(state),
         check_inputs=lm.check_filter_inputs,

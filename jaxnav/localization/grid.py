@@ -106,6 +106,7 @@ Units: metres and radians throughout; ``info.entropy`` in nats.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, NamedTuple
@@ -123,10 +124,11 @@ from jaxnav.core.validation import (
     check_nonnegative,
     check_positive_int,
     check_shape,
+    float_array,
     is_concrete,
 )
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
 
 __all__ = [
     "GridConfig",
@@ -189,6 +191,7 @@ class GridConfig:
         check_positive_int("ny", self.ny)
         check_positive_int("ntheta", self.ntheta)
         check_positive_int("kernel_radius", self.kernel_radius)
+        _check_grid_size(self.nx, self.ny, self.ntheta)
         check_choice("motion_model", self.motion_model, MODELS)
         check_choice("association", self.association, ASSOCIATIONS)
 
@@ -202,6 +205,32 @@ class GridConfig:
         """``(Δx [m], Δy [m], Δθ [rad])``."""
         x0, x1, y0, y1 = self.bounds
         return ((x1 - x0) / self.nx, (y1 - y0) / self.ny, 2.0 * math.pi / self.ntheta)
+
+
+BYTES_PER_CELL = 16
+"""Memory a cell needs during a step (float32): the belief and the prediction's working copies."""
+
+
+def _check_grid_size(nx: int, ny: int, ntheta: int) -> None:
+    """Refuse, before anything is allocated, a grid that cannot be indexed (more than 2³¹ − 1
+    cells) or whose step needs more memory than this machine has."""
+    cells = nx * ny * ntheta
+    size = f"a {nx} × {ny} × {ntheta} grid has {cells:.3g} cells"
+    if cells > np.iinfo(np.int32).max:
+        raise ValueError(f"{size}, more than the 2³¹ − 1 a grid can index: use fewer or larger cells")
+    need, have = cells * BYTES_PER_CELL, _physical_memory()
+    if have is not None and need > have:
+        raise ValueError(
+            f"{size} and needs about {need / 2**30:.3g} GiB for a step, more than this machine's "
+            f"{have / 2**30:.3g} GiB: use fewer or larger cells"
+        )
+
+
+def _physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not a POSIX system: the index limit alone
+        return None
 
 
 GridParams = lm.LandmarkMapParams
@@ -230,7 +259,9 @@ class GridInfo(NamedTuple):
             ``log(nx·ny·nθ)``).
         log_likelihood: ``log p(z_t | z_{1:t−1})`` on the grid, the log of the
             normaliser η⁻¹ (−inf if degenerate; 0 with no valid observation).
-        degenerate: bool, every cell had zero likelihood; the predicted belief was kept.
+        degenerate: bool, every cell had zero likelihood (the predicted belief was kept), or the
+            prediction was not finite, an overflowing control inside a caller's ``jit`` (the
+            previous belief was kept, with ``mass_lost`` and ``kernel_truncation`` 0).
         num_ignored: int32, observation slots dropped because their id is not in the map.
         mass_lost: fraction of the belief that the prediction moved off the grid.
         kernel_truncation: largest fraction of an (x, y) motion kernel that fell
@@ -503,9 +534,10 @@ def _validate_state(config: GridConfig, params: Any, state: GridState) -> None:
         raise ValueError("state.log_belief contains NaN values")
 
 
-def _float_dtype(*xs: Any) -> Any:
-    dt = jnp.result_type(*xs)
-    return dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)
+def _float_dtype(landmarks: Any) -> Any:
+    """The grid's precision: that of the landmarks (the default float for integer landmarks)."""
+    dt = jnp.result_type(landmarks)
+    return dt if jnp.issubdtype(dt, jnp.floating) and np.dtype(dt).itemsize >= 4 else jnp.result_type(float)
 
 
 # ---------------------------------------------------------------------------
@@ -538,7 +570,7 @@ def init(
         if initial_sd is not None:
             raise ValueError("initial_sd needs an initial_pose")
         return GridState(jnp.full(config.shape, -math.log(n), dtype))
-    pose = jnp.asarray(initial_pose, dtype=_float_dtype(initial_pose, dtype))
+    pose = float_array("initial_pose", initial_pose, dtype)
     check_shape("initial_pose", pose, (3,))
     check_finite("initial_pose", pose)
     sd = jnp.zeros((3,), pose.dtype) if initial_sd is None else jnp.asarray(initial_sd, pose.dtype)
@@ -588,6 +620,10 @@ def kernel(
     """One grid-localization step, pure and traceable (:func:`step` is it validated and jitted); the key is not used."""
     dtype = state.log_belief.dtype
     log_pred, mass_lost, trunc = _predict(config, params, state.log_belief, control)
+    # a prediction that is not finite (an overflowing control inside a caller's jit) is not applied
+    moved = jnp.isfinite(mass_lost) & jnp.isfinite(trunc)
+    log_pred = jnp.where(moved, log_pred, state.log_belief)
+    mass_lost, trunc = jnp.where(moved, mass_lost, 0.0), jnp.where(moved, trunc, 0.0)
     pred = weights.normalize(log_pred.ravel())  # uniform if every cell left the grid (mass_lost == 1)
 
     loglik, num_ignored = cell_log_likelihood(config, params, obs)
@@ -601,7 +637,8 @@ def kernel(
     i, j, k = jnp.unravel_index(jnp.argmax(log_post), config.shape)
     map_estimate = jnp.stack([xs[i], ys[j], ths[k]])
     entropy = -jnp.sum(jnp.where(log_post > -jnp.inf, jnp.exp(log_post) * log_post, 0.0))
-    info = GridInfo(estimate, map_estimate, entropy, post.log_norm, post.degenerate, num_ignored, mass_lost, trunc)
+    degenerate = post.degenerate | ~moved
+    info = GridInfo(estimate, map_estimate, entropy, post.log_norm, degenerate, num_ignored, mass_lost, trunc)
     return GridState(log_post.reshape(config.shape)), info
 
 
@@ -610,6 +647,7 @@ step, run = filter_api.build(
         name="grid localization",
         kernel=kernel,
         config_type=GridConfig,
+        state_type=GridState,
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,
@@ -637,8 +675,7 @@ def _motion_kernels_jit(config, params, control):
 def motion_kernels(config: GridConfig, params: GridParams, control: jax.Array) -> MotionKernels:
     """The convolution operator :func:`predict` applies for ``control`` (see :class:`MotionKernels`)."""
     _validate_params(config, params)
-    check_shape("control", control, (get_motion_model(config.motion_model).control_dim,))
-    check_finite("control", control)
+    control = validate_controls("control", control, config.motion_model, time_axis=False)
     return _motion_kernels_jit(config, params, control)
 
 
@@ -655,6 +692,5 @@ def predict(state: GridState, config: GridConfig, params: GridParams, control: j
     """
     _validate_params(config, params)
     _validate_state(config, params, state)
-    check_shape("control", control, (get_motion_model(config.motion_model).control_dim,))
-    check_finite("control", control)
+    control = validate_controls("control", control, config.motion_model, time_axis=False)
     return _predict_jit(config, params, state.log_belief, control)

@@ -125,11 +125,12 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
     check_fraction,
+    check_magnitude,
     check_positive,
     check_positive_int,
     check_shape,
@@ -137,7 +138,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.models import ir
 from jaxnav.models.ir import IRDetection
-from jaxnav.models.motion import MODELS, OdometryNoise, OmniNoise, VelocityNoise, get_motion_model
+from jaxnav.models.motion import MODELS, OdometryNoise, OmniNoise, VelocityNoise, get_motion_model, validate_controls
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = [
@@ -383,11 +384,7 @@ def _validate_state(config: IRMCLConfig, params: Any, state: IRMCLState) -> None
 
 
 def _validate_inputs(config: IRMCLConfig, params: IRMCLParams, controls: Any, det: Any, time_axis: bool) -> None:
-    dim = get_motion_model(config.motion_model).control_dim
-    lead = (None,) if time_axis else ()
-    cname = "controls" if time_axis else "control"
-    check_shape(cname, controls, lead + (dim,))
-    check_finite(cname, controls)
+    validate_controls("controls" if time_axis else "control", controls, config.motion_model, time_axis)
     dname = "detections" if time_axis else "detection"
     if not isinstance(det, IRDetection):
         raise ValueError(f"{dname} must be an IRDetection (jaxnav.models.ir), got {type(det).__name__}")
@@ -395,7 +392,8 @@ def _validate_inputs(config: IRMCLConfig, params: IRMCLParams, controls: Any, de
     t = (np.shape(controls)[0],) if time_axis else ()
     for name in ("mask", "valid", "voltage"):
         check_shape(f"{dname}.{name}", getattr(det, name), t + (r,))
-    check_finite(f"{dname}.voltage", det.voltage)
+    check_shape(f"{dname}.amplitude", det.amplitude, t + (r, None))
+    check_magnitude(f"{dname}.voltage", det.voltage, limit=ir.MAX_VOLTAGE)
 
 
 # ---------------------------------------------------------------------------
@@ -557,7 +555,8 @@ def kernel(
 
     # Alg. 3 lines 12–14: eq. 5.2 for each used receiver (at the restart already in the particles)
     apply = ok & ~trigger
-    norm = weights.normalize(prior_lw + _loglik(particles, idx, apply, det.voltage, params))
+    particles, loglik = keep_finite(state.particles, particles, _loglik(particles, idx, apply, det.voltage, params))
+    norm = weights.normalize(prior_lw + loglik)
 
     # eq. 5.4 and Alg. 3 lines 16–20 (resampling only at a step that weighted the particles)
     threshold = jnp.where(jnp.any(apply), jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
@@ -586,6 +585,7 @@ step, run = filter_api.build(
         name="IR MCL",
         kernel=kernel,
         config_type=IRMCLConfig,
+        state_type=IRMCLState,
         inputs=("control", "detection"),
         time_inputs=("controls", "detections"),
         check_params=_validate_params,

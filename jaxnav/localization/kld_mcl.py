@@ -389,11 +389,19 @@ def kernel(
     return KLDMCLState(new_particles, new_log_w, n_new), info
 
 
+def _active_slots(state: KLDMCLState) -> KLDMCLState:
+    """The active slots of a concrete state, on the host (the others are never read)."""
+    n = int(np.asarray(state.num_active))
+    return state._replace(particles=np.asarray(state.particles)[:n], log_weights=np.asarray(state.log_weights)[:n])
+
+
 step, run = filter_api.build(
     filter_api.FilterSpec(
         name="KLD-sampling MCL",
         kernel=kernel,
         config_type=KLDMCLConfig,
+        state_type=KLDMCLState,
+        state_values=_active_slots,
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,

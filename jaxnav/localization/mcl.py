@@ -45,14 +45,16 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
+    check_bounds,
     check_choice,
     check_finite,
     check_fraction,
     check_nonnegative,
     check_positive_int,
     check_shape,
+    float_array,
 )
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import MODELS, get_motion_model
@@ -170,7 +172,7 @@ def init(
             default) start every particle at the known pose (pose tracking).
     """
     _validate_params(config, params)
-    initial_pose = jnp.asarray(initial_pose, dtype=_float_dtype(initial_pose))
+    initial_pose = float_array("initial_pose", initial_pose)
     check_shape("initial_pose", initial_pose, (3,))
     check_finite("initial_pose", initial_pose)
     sd = jnp.zeros((3,), initial_pose.dtype) if initial_sd is None else jnp.asarray(initial_sd, initial_pose.dtype)
@@ -188,20 +190,13 @@ def init_uniform(
 ) -> MCLState:
     """Global localization: positions uniform in ``bounds = (x_min, x_max, y_min, y_max)`` (m), θ uniform."""
     _validate_params(config, params)
-    x0, x1, y0, y1 = (float(b) for b in bounds)
-    if not (x1 > x0 and y1 > y0):
-        raise ValueError(f"bounds must satisfy x_min < x_max and y_min < y_max, got {bounds}")
+    x0, x1, y0, y1 = check_bounds("bounds", bounds)
     n = config.num_particles
     dtype = jnp.result_type(float)  # float64 under jax_enable_x64, like the particles of init
     u = jax.random.uniform(key, (n, 3), dtype)
     lo = jnp.asarray([x0, y0, -jnp.pi], dtype)
     hi = jnp.asarray([x1, y1, jnp.pi], dtype)
     return MCLState(lo + u * (hi - lo), _uniform(n, dtype))
-
-
-def _float_dtype(x: Any) -> Any:
-    dt = jnp.result_type(x) if hasattr(x, "dtype") else jnp.asarray(x).dtype  # a list or tuple too
-    return dt if jnp.issubdtype(dt, jnp.floating) else jnp.result_type(float)
 
 
 def _uniform(n: int, dtype: Any) -> jax.Array:
@@ -248,7 +243,7 @@ def move_and_weight(
     model = get_motion_model(motion_model)
     moved = model.sample(key, particles, control, params.motion)
     positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
-    loglik = lm.log_likelihood(moved, positions, obs.z, valid, params.sensor)
+    moved, loglik = keep_finite(particles, moved, lm.log_likelihood(moved, positions, obs.z, valid, params.sensor))
     # log_weights is normalised, so the normaliser of the product is the
     # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
     norm = weights.normalize(log_weights + loglik)
@@ -283,6 +278,7 @@ step, run = filter_api.build(
         name="MCL",
         kernel=kernel,
         config_type=MCLConfig,
+        state_type=MCLState,
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,

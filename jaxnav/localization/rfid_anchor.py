@@ -61,11 +61,12 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
     check_fraction,
+    check_magnitude,
     check_nonnegative,
     check_positive,
     check_positive_int,
@@ -289,6 +290,7 @@ def kernel(
         use_phase=config.weighting in ("combined", "phase"),
         softness=config.antenna_softness,
     )
+    moved, ll = keep_finite(p, moved, ll)
     norm = weights.normalize(state.log_weights + ll)
     any_read = jnp.any(reads.mask)
     threshold = jnp.where(any_read, jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
@@ -320,7 +322,7 @@ def _validate_inputs(
     lead = 1 if time_axis else 0
     t = (None,) * lead
     check_shape("controls" if lead else "control", controls, t + (4,))
-    check_finite("controls" if lead else "control", controls)
+    check_magnitude("controls" if lead else "control", controls)
     if not isinstance(reads, AnchorReads):
         raise ValueError(f"reads must be an AnchorReads, got {type(reads).__name__}")
     shape = np.shape(controls)[:lead] + (g,)
@@ -335,7 +337,7 @@ def _validate_inputs(
             if not np.all(np.isfinite(np.asarray(getattr(reads, name)))):
                 raise ValueError(f"reads.{name} must be finite everywhere (fill masked slots with any finite value)")
         if mask.any():
-            U.validate_rssi(np.asarray(reads.rssi)[mask], name="reads.rssi")
+            U.validate_rssi(np.asarray(reads.rssi)[mask], name="reads.rssi", max_w=U.MAX_RSSI_W)
             U.validate_phase(np.asarray(reads.phase)[mask], name="reads.phase")
             check_positive("reads.wavelength", np.asarray(reads.wavelength)[mask])
 
@@ -349,6 +351,7 @@ step, run = filter_api.build(
         name="RFID anchor localization",
         kernel=kernel,
         config_type=RFIDAnchorConfig,
+        state_type=RFIDAnchorState,
         inputs=("control", "reads"),
         time_inputs=("controls", "reads"),
         check_params=lambda config, params: _validate_params(params),

@@ -227,6 +227,7 @@ def _validate_params(params: RFIDTagParams) -> None:
     check_finite("params.box_lo", params.box_lo)
     check_finite("params.box_hi", params.box_hi)
     check_shape("params.tag_height", params.tag_height, ())
+    check_finite("params.tag_height", params.tag_height)
     try:
         lo, hi = np.asarray(params.box_lo), np.asarray(params.box_hi)
     except jax.errors.TracerArrayConversionError:
@@ -385,6 +386,7 @@ step, run = filter_api.build(
         name="RFID tag localization",
         kernel=kernel,
         config_type=RFIDTagConfig,
+        state_type=RFIDTagState,
         inputs=("reads",),
         check_params=lambda config, params: _validate_params(params),
         check_state=_validate_state,

@@ -103,6 +103,7 @@ step, run = filter_api.build(
         name="UKF",
         kernel=kernel,
         config_type=UKFConfig,
+        state_type=ekf.KalmanState,
         check_params=ekf.validate_params,
         check_state=lambda config, params, state: ekf.validate_state(state),
         check_inputs=lm.check_filter_inputs,

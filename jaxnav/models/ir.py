@@ -160,6 +160,7 @@ __all__ = [
     "BELIEF_SIGMA",
     "log_belief",
     "select_emitter",
+    "MAX_VOLTAGE",
 ]
 
 # --------------------------------------------------------------------------------------
@@ -686,6 +687,10 @@ class VoltageModel(NamedTuple):
     c1: jax.Array
     c0: jax.Array
 
+
+MAX_VOLTAGE = 100.0
+"""The largest level a receiver may report (V): [W]'s receiver runs on an 8 V rail (Fig. 5.5), so a
+level beyond ±100 V is a unit or data error, not a reading."""
 
 W_VOLTAGE_MODEL = VoltageModel(c2=-3.27e-5, c1=2.855e-3, c0=1.81997)
 """[W] eq. 5.3, fitted by [W] at 1.2 m emitter–receiver height."""

@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import check_finite, check_positive, check_shape, check_slots
+from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, check_positive, check_shape, check_slots, check_type
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
 
@@ -44,6 +44,7 @@ __all__ = [
     "LandmarkMapParams",
     "validate_map_params",
     "validate_steps",
+    "usable_measurements",
 ]
 
 
@@ -91,17 +92,24 @@ def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, ja
 
     Returns:
         ``(positions [K, 2], valid [K], num_ignored)`` — ``valid`` is the mask
-        (nonzero = set) restricted to ids inside ``[0, M)`` and finite ``z``;
-        ``num_ignored`` counts masked-in slots dropped for either reason (an id
-        outside the map is never read out of bounds; a NaN or infinite ``z``,
-        which the host checks refuse for concrete inputs, never reaches a filter).
+        (nonzero = set) restricted to ids inside ``[0, M)`` and usable ``z``
+        (:func:`usable_measurements`); ``num_ignored`` counts masked-in slots dropped
+        for either reason (an id outside the map is never read out of bounds; a ``z``
+        the host checks refuse for concrete inputs never reaches a filter).
     """
     m = landmark_map.shape[0]
     mask = obs.mask.astype(bool)
-    usable = (obs.ids >= 0) & (obs.ids < m) & jnp.all(jnp.isfinite(obs.z), axis=-1)
+    usable = (obs.ids >= 0) & (obs.ids < m) & usable_measurements(obs.z)
     valid = mask & usable
     positions = jnp.take(landmark_map, jnp.clip(obs.ids, 0, m - 1), axis=0)
     return positions, valid, jnp.sum(mask & ~usable).astype(jnp.int32)
+
+
+def usable_measurements(z: jax.Array) -> jax.Array:
+    """``[K]`` bool: the slot's measurement ``z [K, D]`` is finite and at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude. The host checks refuse other
+    values; inside a caller's ``jit`` the filters drop (and count) such slots instead."""
+    return jnp.all(jnp.isfinite(z) & (jnp.abs(z) <= MAX_MAGNITUDE), axis=-1)
 
 
 def log_likelihood(
@@ -155,10 +163,13 @@ def _residuals(poses: jax.Array, landmark_positions: jax.Array, z: jax.Array) ->
     return resid_r, resid_b
 
 
-def validate_noise(params: RangeBearingNoise) -> None:
-    """Host-side check: ``sd`` has shape ``[2]`` and is strictly positive."""
-    check_shape("sensor noise sd", params.sd, (2,))
-    check_positive("sensor noise sd", params.sd)
+def validate_noise(params: RangeBearingNoise, argument: str = "params.sensor") -> None:
+    """Host-side check: a :class:`RangeBearingNoise` whose ``sd`` has shape ``[2]``, strictly positive and
+    at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE`."""
+    check_type(argument, params, RangeBearingNoise)
+    check_shape(f"{argument}.sd", params.sd, (2,))
+    check_positive(f"{argument}.sd", params.sd)
+    check_magnitude(f"{argument}.sd", params.sd)
 
 
 def validate_observations(obs: RangeBearingObs, time_axis: bool, num_landmarks: int | None = None) -> None:
@@ -202,7 +213,7 @@ def validate_map_params(motion_model: str, params: Any) -> None:
     check_shape("params.landmarks", params.landmarks, (None, 2))
     if np.shape(params.landmarks)[0] < 1:
         raise ValueError("params.landmarks must hold at least one landmark")
-    check_finite("params.landmarks", params.landmarks)
+    check_magnitude("params.landmarks", params.landmarks)
 
 
 def check_filter_inputs(config: Any, params: Any, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:
@@ -218,10 +229,7 @@ def validate_steps(
 ) -> None:
     """Host-side check of one step's control and observations (``time_axis``: a sequence's, ``[T, ...]``):
     controls of ``motion_model``'s dimension, finite, and range-bearing observation slots of as many steps."""
-    dim = motion.get_motion_model(motion_model).control_dim
-    name = "controls" if time_axis else "control"
-    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite(name, controls)
+    motion.validate_controls("controls" if time_axis else "control", controls, motion_model, time_axis)
     if not isinstance(obs, RangeBearingObs):
         raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
     validate_observations(obs, time_axis, num_landmarks)

@@ -46,9 +46,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import check_nonnegative, check_shape
+from jaxnav.core.validation import as_array, check_magnitude, check_nonnegative, check_shape, is_concrete
 from jaxnav.core.weights import wrap_angle
 
 __all__ = [
@@ -75,6 +76,7 @@ __all__ = [
     "MODELS",
     "get_motion_model",
     "validate_noise",
+    "validate_controls",
 ]
 
 
@@ -393,37 +395,42 @@ class MotionModel(NamedTuple):
     noise_type: type
     validate: Callable[[object], None]
     process_cov: Callable[..., jax.Array]
+    dt_index: int | None = None  # where the control holds its time step Δt (s), if it has one
 
 
 def _validate_velocity(params: VelocityNoise) -> None:
     check_shape("motion noise alphas", params.alphas, (6,))
     check_shape("motion noise pose_sd", params.pose_sd, (3,))
-    check_nonnegative("motion noise alphas", params.alphas)
-    check_nonnegative("motion noise pose_sd", params.pose_sd)
+    _check_noise_values(alphas=params.alphas, pose_sd=params.pose_sd)
 
 
 def _validate_odometry(params: OdometryNoise) -> None:
     check_shape("motion noise alphas", params.alphas, (4,))
     check_shape("motion noise pose_sd", params.pose_sd, (3,))
-    check_nonnegative("motion noise alphas", params.alphas)
-    check_nonnegative("motion noise pose_sd", params.pose_sd)
+    _check_noise_values(alphas=params.alphas, pose_sd=params.pose_sd)
 
 
 def _validate_omni(params: OmniNoise) -> None:
     check_shape("motion noise sd", params.sd, (3,))
-    check_nonnegative("motion noise sd", params.sd)
+    _check_noise_values(sd=params.sd)
+
+
+def _check_noise_values(**fields: object) -> None:
+    for field, value in fields.items():
+        check_nonnegative(f"motion noise {field}", value)
+        check_magnitude(f"motion noise {field}", value)
 
 
 MODELS: dict[str, MotionModel] = {
     "velocity": MotionModel(
-        "velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov
+        "velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov, 2
     ),
     "odometry": MotionModel(
         "odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov
     ),
-    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov),
+    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov, 3),
     "omni_body": MotionModel(
-        "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov
+        "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov, 3
     ),
 }
 
@@ -447,3 +454,25 @@ def validate_noise(name: str, params: object, argument: str = "params.motion") -
             f"{argument} must be a {model.noise_type.__name__} for motion model {name!r}, got {type(params).__name__}"
         )
     model.validate(params)
+
+
+def validate_controls(name: str, controls: object, model: str, time_axis: bool) -> object:
+    """Host-side check of controls of motion model ``model`` (``[T, dim]`` with ``time_axis``, else
+    ``[dim]``), named ``name``: the model's dimension, finite values of at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE` (m, s, rad), and a time step ``Δt ≥ 0`` s where
+    the control carries one (a negative Δt would run the motion backwards in time). Returns the
+    controls, a list or tuple converted to an array. Values are skipped for tracers.
+    """
+    spec = get_motion_model(model)
+    controls = as_array(name, controls)
+    check_shape(name, controls, ((None,) if time_axis else ()) + (spec.control_dim,))
+    check_magnitude(name, controls)
+    if spec.dt_index is not None and is_concrete(controls):
+        dt = np.asarray(controls)[..., spec.dt_index]
+        if np.any(dt < 0):
+            where = tuple(int(i) for i in np.argwhere(dt < 0)[0]) + (spec.dt_index,)
+            raise ValueError(
+                f"{name} holds a negative time step Δt (column {spec.dt_index} of a {model!r} control), the "
+                f"first {float(np.asarray(controls)[where]):g} s at index {where}"
+            )
+    return controls

@@ -135,6 +135,7 @@ from jaxnav.core.validation import (
     check_nonnegative,
     check_positive,
     check_shape,
+    check_type,
     is_concrete,
 )
 from jaxnav.core.weights import wrap_angle
@@ -183,6 +184,7 @@ __all__ = [
     "valid_values",
     "read_mask",
     "validate_phase",
+    "MAX_RSSI_W",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -360,15 +362,24 @@ def valid_values(x: Any, mask: Any) -> np.ndarray | None:
     ]
 
 
-def validate_rssi(y: Any, mask: Any = None, name: str = "y") -> None:
-    """An RSSI must be a received power: finite and > 0 (W). Masked entries are not checked."""
+MAX_RSSI_W = 1.0
+"""The largest received power an RSSI may report (W, i.e. 30 dBm): a UHF reader transmits at most
+4 W EIRP, and a backscattered read is many orders of magnitude weaker."""
+
+
+def validate_rssi(y: Any, mask: Any = None, name: str = "y", max_w: float | None = None) -> None:
+    """An RSSI must be a received power: finite and > 0 (W), and with ``max_w`` at most that (a
+    reader's reads: :data:`MAX_RSSI_W`; the density :func:`log_w_rssi` takes any positive ``y``).
+    Masked entries are not checked."""
     v = valid_values(y, mask)
     if v is None:
         return
-    if not np.all(np.isfinite(v)) or np.any(v <= 0):
-        bad = v[~(np.isfinite(v) & (v > 0))]
+    ok = np.isfinite(v) & (v > 0) & (v <= (np.inf if max_w is None else max_w))
+    if not np.all(ok):
+        bad = v[~ok]
+        most = "" if max_w is None else f" of at most {max_w:g} W"
         raise ValueError(
-            f"{name} (RSSI) must be a positive received power in W, got {bad[:5].tolist()}; convert "
+            f"{name} (RSSI) must be a positive received power in W{most}, got {bad[:5].tolist()}; convert "
             "dBm with dbm_to_watt, and mask missing reads instead of writing 0"
         )
 
@@ -416,7 +427,7 @@ def validate_reads(reads: UHFReads, name: str = "reads") -> None:
                 f"{name}.{field} must be finite everywhere (masked slots too: fill them with any finite value)"
             )
     if m.any():
-        validate_rssi(np.asarray(reads.rssi)[m], name=f"{name}.rssi")
+        validate_rssi(np.asarray(reads.rssi)[m], name=f"{name}.rssi", max_w=MAX_RSSI_W)
         validate_phase(np.asarray(reads.phase)[m], name=f"{name}.phase")
         check_positive(f"{name}.wavelength", np.asarray(reads.wavelength)[m])
         if np.any(np.asarray(reads.reader)[..., 2][m] < 0):
@@ -677,7 +688,7 @@ def rssi_log_likelihood(reads: Any, a: Any, gamma: GammaParams, mask: Any = None
 
     Masked entries contribute 0 whatever they hold (NaN and 0 included).
     """
-    validate_rssi(reads, mask, "reads")
+    validate_rssi(reads, mask, "reads", max_w=MAX_RSSI_W)
     validate_gamma(gamma)
     y = jnp.asarray(reads)
     valid = read_mask(y.shape, mask)
@@ -767,7 +778,19 @@ def read_model_float32(channel: ChannelParams, gamma: GammaParams) -> tuple[Chan
 
 
 def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any, prefix: str = "params") -> None:
-    """Host-side checks of the parameters :func:`read_log_likelihood` takes (σ_phase a positive scalar, m)."""
+    """Host-side checks of the parameters :func:`read_log_likelihood` takes: a :class:`ChannelParams`
+    and a :class:`GammaParams` of scalars, and σ_phase a positive scalar (m)."""
+    check_type(f"{prefix}.channel", channel, ChannelParams)
+    check_type(f"{prefix}.channel.antenna", channel.antenna, AntennaParams)
+    check_type(f"{prefix}.gamma", gamma, GammaParams)
+    for group, fields in (
+        ("channel", channel._replace(antenna=None)),
+        ("channel.antenna", channel.antenna),
+        ("gamma", gamma),
+    ):
+        for field, value in zip(fields._fields, fields):
+            if field != "antenna":
+                check_shape(f"{prefix}.{group}.{field}", value, ())
     validate_channel(channel)
     validate_gamma(gamma)
     check_shape(f"{prefix}.phase_sigma", phase_sigma, ())

@@ -18,10 +18,13 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from jaxnav.core.filter import check_key
+from jaxnav.core.validation import check_magnitude, check_positive, check_shape, float_array, is_concrete
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import get_motion_model
+from jaxnav.models.motion import get_motion_model, validate_controls, validate_noise
 
 __all__ = ["SimulatedRun", "square_room_landmarks", "simulate"]
 
@@ -57,7 +60,6 @@ def square_room_landmarks(size: float = 10.0, num: int = 8) -> jax.Array:
     return jnp.stack([x, y], axis=-1)
 
 
-@partial(jax.jit, static_argnames=("motion_model",))
 def simulate(
     key: jax.Array,
     landmarks: jax.Array,
@@ -81,7 +83,33 @@ def simulate(
         motion_model: a name in :data:`jaxnav.models.motion.MODELS`.
         max_range: detection range (m); landmarks farther away are masked out.
         fov: full field of view (rad) centred on the heading.
+
+    The arguments are checked on the host as a filter's are (``ValueError`` naming the argument):
+    landmarks ``[M, 2]`` and a start pose ``[3]`` finite and at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE`, controls ``[T, control_dim]`` of the model with
+    ``Δt ≥ 0``, the model's noise and a range-bearing noise, ``max_range > 0`` and
+    ``0 < fov ≤ 2π``. Lists are accepted as arrays. Jitted; the same shapes never retrace.
     """
+    check_key(key)
+    landmarks = float_array("landmarks", landmarks)
+    check_shape("landmarks", landmarks, (None, 2))
+    check_magnitude("landmarks", landmarks)
+    initial_pose = float_array("initial_pose", initial_pose)
+    check_shape("initial_pose", initial_pose, (3,))
+    check_magnitude("initial_pose", initial_pose)
+    controls = float_array("controls", validate_controls("controls", controls, motion_model, time_axis=True))
+    validate_noise(motion_model, motion_noise, "motion_noise")
+    lm.validate_noise(sensor_noise, "sensor_noise")
+    if is_concrete(max_range) and not np.all(np.asarray(max_range, float) > 0):  # inf: no limit
+        raise ValueError(f"max_range must be > 0 m (inf for no limit), got {max_range!r}")
+    check_positive("fov", fov)
+    if is_concrete(fov) and np.any(np.asarray(fov) > 2.0 * math.pi + 1e-6):
+        raise ValueError(f"fov must be in (0, 2π] rad, got {np.asarray(fov)}")
+    return _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise, motion_model, max_range, fov)
+
+
+@partial(jax.jit, static_argnames=("motion_model",))
+def _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise, motion_model, max_range, fov):
     model = get_motion_model(motion_model)
     m = landmarks.shape[0]
 

@@ -326,9 +326,12 @@ def detection_capacity(layout: CarpetLayout, side: float, offsets: Any) -> int:
       most ``A/p² + P/(2p) + 1`` lattice points (Bokowski, Hadwiger and Wills'
       inequality, 1972).
 
+    * the carpet: a reader cannot detect more tags than the carpet holds.
+
     A micrometre of slack covers floating-point rounding. The total is ``B``
     times the per-reader bound (a tag seen by two readers fills two slots). It
-    does not depend on the carpet size. Examples (J = 10 mm, 8 readers):
+    does not depend on the carpet size unless a footprint covers most of the
+    carpet. Examples (J = 10 mm, 8 readers):
     60 mm readers on 0.10 m pitch → 3 per reader, 24 in all; 300 mm readers on
     0.50 m pitch → 1 per reader, 8 in all; 300 mm readers on 0.10 m pitch → 18
     per reader, 144 in all.
@@ -347,7 +350,7 @@ def detection_capacity(layout: CarpetLayout, side: float, offsets: Any) -> int:
     j_eff = j + 1e-6
     area = s_eff * s_eff + 4.0 * j_eff * j_eff + 4.0 * _SQRT2 * s_eff * j_eff
     convex = int(math.floor(area / (p * p) + (4.0 * s_eff + 8.0 * j_eff) / (2.0 * p) + 1.0))
-    return b * max(1, min(per_axis * per_axis, packing, convex))
+    return b * max(1, min(per_axis * per_axis, packing, convex, layout.num_tags))
 
 
 def _static_side(readers: hf_rfid.HFReaderParams, footprint_side: float | None, what: str) -> float:

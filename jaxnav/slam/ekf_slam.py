@@ -95,6 +95,7 @@ from jaxnav.core.validation import (
     check_choice,
     check_covariance,
     check_finite,
+    check_magnitude,
     check_positive_int,
     check_shape,
 )
@@ -196,6 +197,8 @@ class EKFSLAMInfo(NamedTuple):
         num_ignored: slots whose id is outside ``[0, M)``.
         num_gated: updates rejected by the gate.
         num_new: landmarks initialised in this step.
+        degenerate: bool, the step's result was not finite and was not applied: the state is carried
+            over unchanged (:func:`jaxnav.core.kalman.finite_or_previous`).
     """
 
     estimate: jax.Array
@@ -209,6 +212,7 @@ class EKFSLAMInfo(NamedTuple):
     num_ignored: jax.Array
     num_gated: jax.Array
     num_new: jax.Array
+    degenerate: jax.Array
 
 
 # ---------------------------------------------------------------------------
@@ -231,7 +235,7 @@ def validate_state(config: EKFSLAMConfig, params: Any, state: EKFSLAMState) -> N
         raise ValueError(f"state must be an EKFSLAMState, got {type(state).__name__}")
     n = config.state_dim
     check_shape("state.mean", state.mean, (n,))
-    check_finite("state.mean", state.mean)
+    check_magnitude("state.mean", state.mean)
     check_covariance("state.cov", state.cov, n)
     check_shape("state.seen", state.seen, (config.num_landmarks,))
     if jnp.result_type(state.seen) != jnp.bool_:
@@ -247,7 +251,7 @@ def _landmark_prior(config: EKFSLAMConfig, landmarks, landmark_cov, known, dtype
             raise ValueError("landmark_cov and known need landmarks")
         return jnp.zeros((m, 2), dtype), placeholder, jnp.zeros((m,), bool)
     check_shape("landmarks", landmarks, (m, 2))
-    check_finite("landmarks", landmarks)
+    check_magnitude("landmarks", landmarks)
     if landmark_cov is None:
         raise ValueError("landmarks need landmark_cov ([2, 2] or [M, 2, 2])")
     blocks = jnp.asarray(landmark_cov, dtype)
@@ -434,6 +438,8 @@ def kernel(
     mean, cov, seen, nis, ll, accepted, (num_ignored, num_gated, num_new) = _correct(
         mean, cov, state.seen, obs, r, config.gate
     )
+    (mean, cov), degenerate = kalman.finite_or_previous((mean, cov), (state.mean, state.cov))
+    seen = jnp.where(degenerate, state.seen, seen)
     m = config.num_landmarks
     map_blocks = cov[POSE_DIM:, POSE_DIM:].reshape(m, 2, m, 2)
     ar = jnp.arange(m)
@@ -443,12 +449,13 @@ def kernel(
         landmarks=mean[POSE_DIM:].reshape(m, 2),
         landmark_cov=map_blocks[ar, :, ar, :],
         seen=seen,
-        nis=nis,
-        accepted=accepted,
-        log_likelihood=ll,
+        accepted=accepted & ~degenerate,
+        nis=jnp.where(degenerate, 0.0, nis),
+        log_likelihood=jnp.where(degenerate, -jnp.inf, ll),
         num_ignored=num_ignored,
         num_gated=num_gated,
-        num_new=num_new,
+        num_new=jnp.where(degenerate, 0, num_new),
+        degenerate=degenerate,
     )
     return EKFSLAMState(mean, cov, seen), info
 
@@ -458,6 +465,7 @@ step, run = filter_api.build(
         name="EKF-SLAM",
         kernel=kernel,
         config_type=EKFSLAMConfig,
+        state_type=EKFSLAMState,
         check_params=validate_params,
         check_state=validate_state,
         check_inputs=lm.check_filter_inputs,

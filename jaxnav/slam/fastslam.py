@@ -76,14 +76,17 @@ from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
 from jaxnav.core.validation import (
     check_choice,
+    check_covariances,
     check_finite,
     check_fraction,
+    check_magnitude,
     check_nonnegative,
     check_positive_int,
     check_shape,
     check_slots,
 )
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models import landmarks as lm
+from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 from jaxnav.models.observation import HF_FOOTPRINT, OBSERVATION_MODELS, RANGE_BEARING, ObservationModel
 
@@ -289,10 +292,8 @@ def _validate_state(config: FastSLAMConfig, params: Any, state: FastSLAMState) -
 def _validate_inputs(
     config: FastSLAMConfig, params: FastSLAMParams, controls: jax.Array, obs: Any, time_axis: bool
 ) -> None:
-    dim = get_motion_model(config.motion_model).control_dim
     name = "controls" if time_axis else "control"
-    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite(name, controls)
+    validate_controls(name, controls, config.motion_model, time_axis)
     for field in ("ids", "z", "mask"):
         if not hasattr(obs, field):
             raise ValueError(f"observations must have fields ids, z and mask (e.g. RangeBearingObs); missing {field!r}")
@@ -334,7 +335,8 @@ def init(
         landmark_means: optional ``[M, D]`` prior map copied into every
             particle (marks every landmark seen), e.g. for benchmark W3.
         landmark_covs: ``[M, D, D]`` covariances of that prior map (default
-            ``1e-2 I`` m²).
+            ``1e-2 I`` m²), each symmetric positive definite (else ``ValueError`` naming the
+            landmark).
     """
     _validate_params(config, params)
     n, m, d = config.num_particles, config.num_landmarks, config.obs_model.landmark_dim
@@ -354,13 +356,14 @@ def init(
     else:
         lm_means = jnp.asarray(landmark_means, pose.dtype)
         check_shape("landmark_means", lm_means, (m, d))
-        check_finite("landmark_means", lm_means)
+        check_magnitude("landmark_means", lm_means)
         lm_covs = (
             1e-2 * jnp.broadcast_to(jnp.eye(d, dtype=pose.dtype), (m, d, d))
             if landmark_covs is None
             else jnp.asarray(landmark_covs, pose.dtype)
         )
         check_shape("landmark_covs", lm_covs, (m, d, d))
+        check_covariances("landmark_covs", lm_covs, d)
         means = jnp.broadcast_to(lm_means, (n, m, d))
         covs = jnp.broadcast_to(lm_covs, cov_shape)
         seen = jnp.ones((m,), bool)
@@ -375,10 +378,11 @@ def init(
 
 def slot_valid(obs: Any, m: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``(valid [K], safe ids [K], num_ignored)``: masked-in slots (nonzero = set) with an id outside
-    ``[0, M)`` or a non-finite ``z`` are dropped and counted (the host checks refuse the latter for
-    concrete inputs; under a caller's ``jit`` it never reaches a landmark's EKF)."""
+    ``[0, M)`` or a ``z`` that is not finite or exceeds the magnitude limit
+    (:func:`jaxnav.models.landmarks.usable_measurements`) are dropped and counted (the host checks
+    refuse the latter for concrete inputs; under a caller's ``jit`` it never reaches a landmark's EKF)."""
     mask = obs.mask.astype(bool)
-    usable = (obs.ids >= 0) & (obs.ids < m) & jnp.all(jnp.isfinite(obs.z), axis=-1)
+    usable = (obs.ids >= 0) & (obs.ids < m) & lm.usable_measurements(obs.z)
     valid = mask & usable
     return valid, jnp.clip(obs.ids, 0, m - 1), jnp.sum(mask & ~usable).astype(jnp.int32)
 
@@ -696,12 +700,23 @@ def kernel(
         om, r, poses, state.means, state.covs, state.seen, obs, valid, ids, config.parallel_slots
     )
     loglik = update_ll if config.version == 1 else proposal_ll
+    # the guard of every particle filter (core.particle_filter.keep_finite), with the particle's map
+    # rows: a particle whose pose or updated landmarks are not finite keeps its pose, gets zero
+    # weight and is resampled away (this step resamples whatever its ESS, so its rows are never
+    # an ancestor's); with none left the step writes nothing and is degenerate
+    ok = _finite_particles(poses, updates, config.num_landmarks)
+    poses = jnp.where(ok[:, None], poses, state.poses)
+    loglik = jnp.where(ok, loglik, -jnp.inf)
+    any_ok, all_ok = jnp.any(ok), jnp.all(ok)
+    updates = updates._replace(write=jnp.where(any_ok, updates.write, config.num_landmarks))
+    seen = jnp.where(any_ok, seen, state.seen)
+    num_new = jnp.where(any_ok, num_new, 0)
     norm = weights.normalize(state.log_weights + loglik)
     res, base = finish_step(
         k_resample,
         poses,
         norm,
-        threshold=config.ess_threshold,
+        threshold=config.ess_threshold if config.ess_threshold >= 1.0 else jnp.where(all_ok, config.ess_threshold, 1.0),
         scheme=config.resampling,
         angle_dims=_POSE_ANGLE_DIMS,
     )
@@ -712,6 +727,18 @@ def kernel(
     poses = res.particles
     info = extend_info(FastSLAMInfo, base, num_ignored=num_ignored, num_new=num_new)
     return FastSLAMState(poses, res.log_weights, means, covs, seen), info
+
+
+def _finite_particles(poses: jax.Array, updates: SlotUpdates, num_landmarks: int) -> jax.Array:
+    """``[N]`` bool: the particle's pose and the map rows the step writes for it are finite (a shared
+    covariance row that is not finite makes every particle so)."""
+    written = updates.write < num_landmarks  # [K]
+    ok = jnp.all(jnp.isfinite(poses), axis=-1)
+    ok &= jnp.all(jnp.isfinite(updates.rows_mu) | ~written[:, None, None], axis=(0, 2))
+    cov_ok = jnp.isfinite(updates.rows_cov) | ~jnp.expand_dims(written, tuple(range(1, updates.rows_cov.ndim)))
+    if updates.rows_cov.ndim == 4:  # per particle [K, N, D, D]
+        return ok & jnp.all(cov_ok, axis=(0, 2, 3))
+    return ok & jnp.all(cov_ok)
 
 
 def _copies_in_place(config: FastSLAMConfig) -> bool:
@@ -756,6 +783,7 @@ step, run = filter_api.build(
         name="FastSLAM",
         kernel=kernel,
         config_type=FastSLAMConfig,
+        state_type=FastSLAMState,
         time_inputs=("controls", "observations"),
         check_params=_validate_params,
         check_state=_validate_state,

@@ -195,6 +195,7 @@ step, run = filter_api.build(
         ``(v_x, v_y, ω, Δt)``) and detections with leading axis ``T``; ``state`` from :func:`init`.
         ``trace`` is a :class:`SLAMInfo` with leading axis ``T``. ``donate_state=True`` matters for
         large tables: without it the initial table is copied into the scan at every call.""",
+        state_type=PFSLAMState,
     ),
     __name__,
 )

@@ -222,6 +222,7 @@ step, run = filter_api.build(
         axis ``T``; ``state`` from :func:`init`. ``trace`` is a :class:`SLAMInfo` with leading axis ``T``.
         ``donate_state=True`` matters for large tables: without it the initial table and its rings are
         copied into the scan at every call.""",
+        state_type=PSSLAMState,
     ),
     __name__,
 )

@@ -73,7 +73,7 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -83,7 +83,7 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.models import hf_rfid
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 _POSE_ANGLE_DIMS = (2,)
@@ -101,7 +101,8 @@ class SLAMInfo(PFInfo):
         log_likelihood: log marginal-likelihood increment of the robot filter.
         degenerate: bool, every robot weight was zero and the set was reset to uniform.
         lost: bool, kidnapping recovery redrew the robot particles (see ``config.recovery``).
-        num_ignored: valid slots whose tag ID is outside ``[0, max_tags)`` (dropped).
+        num_ignored: valid slots whose tag ID is outside ``[0, max_tags)``, and tags whose update was not
+            finite (dropped, the tag's row left as it was).
         num_new: tags initialised this step.
         num_updated: tags re-detected (updated) this step.
         slot_ids: ``[K]`` tag ID per slot, −1 for empty or dropped slots.
@@ -214,10 +215,8 @@ def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, .
 
 def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, time_axis: bool) -> None:
     """Odometry of the configured motion model and :class:`~jaxnav.models.hf_rfid.TagDetections` of as many steps."""
-    dim = get_motion_model(config.motion_model).control_dim
     name = "controls" if time_axis else "control"
-    check_shape(name, controls, ((None,) if time_axis else ()) + (dim,))
-    check_finite(name, controls)
+    validate_controls(name, controls, config.motion_model, time_axis)
     hf_rfid.validate_detections(detections, time_axis, params.sensor.num_readers, "detections")
     if time_axis and np.shape(detections.ids)[0] != np.shape(controls)[0]:
         raise ValueError(
@@ -362,7 +361,7 @@ def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) 
         return jnp.full((num_slots,) + v.shape[1:], fill, v.dtype).at[order].set(v)
 
     info = res.info.replace(
-        num_ignored=num_ignored,
+        num_ignored=num_ignored + res.info.num_ignored,  # the compacted slots are all valid: only rows not written
         slot_ids=put(-1, res.info.slot_ids),
         slot_estimates=put(0, res.info.slot_estimates),
         slot_counts=put(0, res.info.slot_counts),
@@ -455,17 +454,19 @@ def _slot_result(
     new_rows = jax.vmap(lambda k, row, p, lw, ll, new: tag_model.finish(k, row, p, lw, ll, new, config, params))(
         tag_keys, rows, particles, log_w, loglik, is_new
     )
-    write = leader & ~lost
+    # a row whose update is not finite (an overflow under a caller's jit) is not written, and counted
+    row_ok = jnp.all(jnp.isfinite(new_rows.particles), axis=(1, 2)) & jnp.all(jnp.isfinite(new_rows.estimates), axis=-1)
+    write = leader & ~lost & row_ok
     write_ids = jnp.where(write, ids, max_tags)  # out of range: dropped by the scatter
 
-    estimates = jnp.where(lost, rows.estimates, new_rows.estimates)
+    estimates = jnp.where(lost | ~row_ok[:, None], rows.estimates, new_rows.estimates)
     if config.recovery:  # a cond: a step that is not lost draws nothing (under vmap both branches run)
         poses = jax.lax.cond(
             lost, lambda p: _recover(k_recover, p, rows.estimates, offsets, known, config, sensor), lambda p: p, poses
         )
     uniform = jnp.full_like(state_log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
     prior_lw = jnp.where(lost, uniform, state_log_weights)
-    loglik = _robot_log_likelihood(poses, estimates, offsets, known, sensor)
+    poses, loglik = keep_finite(state_poses, poses, _robot_log_likelihood(poses, estimates, offsets, known, sensor))
     norm = weights.normalize(prior_lw + loglik)
     res, base = finish_step(
         k_resample, poses, norm, threshold=config.ess_threshold, scheme=config.resampling, angle_dims=_POSE_ANGLE_DIMS
@@ -476,9 +477,9 @@ def _slot_result(
         SLAMInfo,
         base,
         lost=lost,
-        num_ignored=num_ignored,
-        num_new=jnp.sum(leader & is_new & ~lost).astype(jnp.int32),
-        num_updated=jnp.sum(leader & known & ~lost).astype(jnp.int32),
+        num_ignored=num_ignored + jnp.sum(leader & ~row_ok).astype(jnp.int32),
+        num_new=jnp.sum(write & is_new).astype(jnp.int32),
+        num_updated=jnp.sum(write & known).astype(jnp.int32),
         slot_ids=jnp.where(valid, ids, -1),
         slot_estimates=jnp.where(valid[:, None], estimates, 0.0),
         slot_counts=jnp.where(valid, counts_after, 0),
@@ -509,6 +510,7 @@ def filter_spec(
     table_shapes: Callable[[Any], dict[str, tuple[int, ...]]],
     step_doc: str,
     run_doc: str,
+    state_type: type | None = None,
 ) -> filter_api.FilterSpec:
     """The :class:`~jaxnav.core.filter.FilterSpec` of a tag-SLAM filter: odometry and
     :class:`~jaxnav.models.hf_rfid.TagDetections` in, the state donated to ``step`` (the tag table
@@ -517,6 +519,7 @@ def filter_spec(
         name=name,
         kernel=kernel,
         config_type=config_type,
+        state_type=state_type,
         inputs=("control", "detections"),
         time_inputs=("controls", "detections"),
         check_params=check_params,

@@ -29,6 +29,19 @@ def test_summaries_write_the_mean_the_interval_and_the_unscored_runs():
     assert report.interval(none, 1) == "n/a"
 
 
+def test_diverged_runs_are_said_with_the_number_of_runs():
+    assert report.diverged_note(2, 100) == "2 of 100 runs diverged" and report.diverged_note(1) == "1 run diverged"
+    assert report.diverged_note(0, 8) == "" and report.diverged_line("row", 0, 8) == ""
+    assert report.diverged_line("16 tags/m², PF-SLAM", 1, 8) == (
+        "16 tags/m², PF-SLAM: 1 of 8 runs diverged (non-finite results), left out of every column"
+    )
+    point = {"mean": 12.0, "ci95": [10.0, 14.0], "unscored_runs": 1, "diverged_runs": 2, "runs": 8}
+    assert report.interval(point, 0) == "12 [10, 14] (1 run n/a, 2 of 8 runs diverged)"
+    assert report.plus_minus(point, 0, note=False) == "12 ± 2 (2 of 8 runs diverged)"
+    every = {"mean": math.nan, "ci95": [math.nan, math.nan], "diverged_runs": 8, "runs": 8}
+    assert report.interval(every, 1) == "n/a (8 of 8 runs diverged)"
+
+
 def test_text_table_layout():
     columns = [report.Column("name", 6, "<"), report.Column("x", 5), report.Column("note", gap="  ", align="<")]
     text = report.text(columns, [["a", "1.0", "first"], ["bb", "22.5", ""]], title=["T"], footer=["F"])

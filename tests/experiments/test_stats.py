@@ -48,14 +48,55 @@ def test_no_run_with_a_value_gives_nan_never_zero():
     assert "NaN" in json.dumps(column)  # the JSON holds NaN, not 0
     mean, missing = stats.finite_mean([math.nan])
     assert math.isnan(mean) and missing == 1
-    assert math.isnan(stats.finite_median([math.nan, math.nan]))
+    median, missing = stats.finite_median([math.nan, math.nan])
+    assert math.isnan(median) and missing == 2
 
 
 def test_finite_mean_and_median_leave_out_and_count_the_unscored_runs():
     assert stats.finite_mean([1.0, 2.0, 6.0]) == (3.0, 0)
     assert stats.finite_mean([1.0, math.nan, 5.0]) == (3.0, 1)
-    assert stats.finite_median([1.0, math.nan, 5.0, 100.0]) == 5.0
-    assert stats.finite_median([4.0, 1.0]) == 2.5
+    assert stats.finite_median([1.0, math.nan, 5.0, 100.0]) == (5.0, 1)
+    assert stats.finite_median([4.0, 1.0]) == (2.5, 0)
+    mean, missing = stats.finite_mean([])
+    assert math.isnan(mean) and missing == 0
+
+
+def test_mean_ci_leaves_no_run_out():
+    """mean_ci takes every run: a non-finite one makes the mean and interval NaN instead of vanishing;
+    summarize is what leaves runs out, and it says how many."""
+    for bad in (math.nan, math.inf, -math.inf):
+        assert all(math.isnan(x) for x in stats.mean_ci([1.0, 2.0, bad]))
+    assert all(math.isnan(x) for x in stats.mean_ci([]))
+    s = stats.summarize([1.0, 2.0, math.inf])
+    assert s.mean == pytest.approx(1.5) and s.unscored == 1 and s.runs == 3
+
+
+def test_diverged_runs_are_left_out_of_every_quantity_and_counted():
+    """Runs 1 and 3 of four diverged (a robot error of NaN / inf): they are found from the quantities
+    every run has, left out of a quantity whatever its value there, and counted apart from the runs
+    with nothing to score."""
+    robot = np.array([10.0, np.nan, 30.0, np.inf])
+    curve = np.ones((4, 3))
+    curve[2, 1] = np.nan  # run 2 diverged in its error over time
+    gone = stats.diverged_runs(robot)
+    assert gone.tolist() == [False, True, False, True]
+    assert stats.diverged_runs(robot, curve).tolist() == [False, True, True, True]
+    tag = np.array([5.0, 7.0, np.nan, 9.0])  # run 2 mapped nothing; run 3's tag value is finite but it diverged
+    s = stats.summarize(tag, diverged=gone)
+    assert (s.runs, s.unscored, s.diverged, s.scored) == (4, 1, 2, 1) and s.mean == 5.0
+    assert stats.column_summary(tag, gone) == {"mean": 5.0, "ci95": [5.0, 5.0], "unscored_runs": 1, "diverged_runs": 2}
+    assert "diverged_runs" not in stats.column_summary(tag)
+    none = stats.summarize(robot, diverged=np.ones(4, bool))
+    assert math.isnan(none.mean) and none.diverged == 4 and none.unscored == 0
+    with pytest.raises(ValueError, match="4 booleans"):
+        stats.summarize(tag, diverged=[True, False])
+    with pytest.raises(ValueError, match="leading axis of 4"):
+        stats.diverged_runs(robot, np.ones(3))
+
+
+def test_mean_ci_columns_of_no_run_is_nan():
+    m, lo, hi = stats.mean_ci_columns(np.empty((0, 3)))
+    assert m.shape == lo.shape == hi.shape == (3,) and np.all(np.isnan(m)) and np.all(np.isnan(hi))
 
 
 def test_mean_ci_columns_is_mean_ci_per_column():

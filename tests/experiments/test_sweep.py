@@ -158,3 +158,112 @@ def test_threads_asking_for_one_executable_compile_it_once():
     [t.start() for t in threads]
     [t.join() for t in threads]
     assert len(traces) == 1 and all(e is exes[0] for e in exes)
+
+
+# ---------------------------------------------------------------------------
+# chunk widths: a run is bit for bit the same whenever its chunk has the same width
+
+
+def _bits(result):
+    return {c: {f: (v.dtype.str, v.shape, v.tobytes()) for f, v in fields.items()} for c, fields in result.items()}
+
+
+def test_a_resume_with_another_chunk_size_is_refused(tmp_path):
+    """The checkpoint records the chunk width; resuming it with a chunk size that would compute chunks of
+    another width is refused (naming both sizes, the file and the ways on); with the same size it gives
+    the uninterrupted sweep's bits."""
+    key = jax.random.PRNGKey(6)
+    path = str(tmp_path / "runs.json")
+    uninterrupted = sw.sweep(_cells(), 6, key, chunk_size=2, progress=False)
+
+    def stop(cell, done):
+        if cell == "shifted":
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        sw.sweep(_cells(), 6, key, path, chunk_size=2, progress=False, on_chunk=stop)
+    assert json.load(open(path))["chunk_size"] == 2
+    before = open(path).read()
+    with pytest.raises(ValueError) as err:
+        sw.sweep(_cells(), 6, key, path, chunk_size=3, progress=False)
+    message = str(err.value)
+    assert path in message and "chunks of 2" in message and "chunks of 3" in message
+    assert "--chunk 2" in message and "--fresh" in message and "\n" not in message
+    assert open(path).read() == before  # a refused checkpoint is left as it was
+    resumed = sw.sweep(_cells(), 6, key, path, chunk_size=2, progress=False)
+    assert _bits(resumed) == _bits(uninterrupted)
+    other = sw.sweep(_cells(), 6, key, path, chunk_size=3, progress=False, fresh=True)
+    assert json.load(open(path))["chunk_size"] == 3 and other["noisy"]["a"].shape == (6,)
+
+
+def test_a_longer_sweep_extends_a_shorter_one_chunk_by_chunk(tmp_path):
+    """R = 5 in chunks of 3, then R = 9: the chunk holding runs 3–5 is evaluated again (the same keys at
+    the same places), so the 9 runs are bit for bit those of a 9-run sweep; a complete checkpoint is read
+    whatever the chunk size (nothing is evaluated), and a shorter sweep reads its first runs."""
+    key = jax.random.PRNGKey(7)
+    path = str(tmp_path / "runs.json")
+    sw.sweep(_cells(), 5, key, path, chunk_size=3, progress=False)
+    seen = []
+    longer = sw.sweep(_cells(), 9, key, path, chunk_size=3, progress=False, on_chunk=lambda c, d: seen.append((c, d)))
+    assert seen == [("noisy", 6), ("noisy", 9), ("shifted", 6), ("shifted", 9)]
+    assert _bits(longer) == _bits(sw.sweep(_cells(), 9, key, chunk_size=3, progress=False))
+    assert _bits(sw.sweep(_cells(), 9, key, path, chunk_size=7, progress=False)) == _bits(longer)
+    shorter = sw.sweep(_cells(), 4, key, path, chunk_size=1, progress=False)
+    assert all(np.array_equal(shorter[c]["a"], longer[c]["a"][:4]) for c in shorter)
+
+
+def test_a_sweep_shorter_than_a_chunk_keeps_its_width(tmp_path):
+    """R = 3 with the default 25 runs per chunk computes one chunk of 3 (no padding); extending it to 6 runs
+    with 25 would compute a chunk of 6, so it is refused, and works with --chunk 3. A checkpoint of chunks of
+    4 resumed with chunk size 4 for 2 runs evaluates a whole chunk of 4: the runs of the checkpoint's width."""
+    key = jax.random.PRNGKey(8)
+    path = str(tmp_path / "runs.json")
+    sw.sweep(_cells(), 3, key, path, progress=False)
+    assert json.load(open(path))["chunk_size"] == 3
+    with pytest.raises(ValueError, match=r"chunks of 3 .* chunks of 6 \(--chunk 25 with --runs 6\).*--chunk 3"):
+        sw.sweep(_cells(), 6, key, path, progress=False)
+    assert _bits(sw.sweep(_cells(), 6, key, path, chunk_size=3, progress=False)) == _bits(
+        sw.sweep(_cells(), 6, key, chunk_size=3, progress=False)
+    )
+
+    padded = str(tmp_path / "padded.json")
+    with pytest.raises(KeyboardInterrupt):
+        sw.sweep(_cells(), 8, key, padded, chunk_size=4, progress=False, on_chunk=_interrupt_at("shifted"))
+    two = sw.sweep(_cells(), 2, key, padded, chunk_size=4, progress=False)
+    full = sw.sweep(_cells(), 8, key, chunk_size=4, progress=False)
+    assert _bits(two) == _bits({c: {f: v[:2] for f, v in fields.items()} for c, fields in full.items()})
+
+
+def _interrupt_at(cell_id):
+    def stop(cell, done):
+        if cell == cell_id:
+            raise KeyboardInterrupt
+
+    return stop
+
+
+def test_non_finite_runs_are_written_as_null_and_read_as_nan(tmp_path):
+    """A run that returns NaN or ±inf is stored as null (standard JSON, no NaN literal) and comes back as
+    NaN, from the checkpoint and without one alike; integers and booleans keep their type."""
+
+    class Mixed(NamedTuple):
+        x: jax.Array
+        n: jax.Array
+        ok: jax.Array
+
+    def fn(key):
+        r = jax.random.uniform(key)
+        x = jnp.where(r < 0.3, jnp.nan, jnp.where(r > 0.8, jnp.inf, r))
+        return Mixed(x, jnp.int32(3), r > 0.5)
+
+    key = jax.random.PRNGKey(9)
+    path = str(tmp_path / "runs.json")
+    first = sw.sweep([("c", fn)], 12, key, path, chunk_size=4, progress=False)
+    text = open(path).read()
+    assert "NaN" not in text and "Infinity" not in text and "null" in text
+    stored = json.loads(text)["cells"]["c"]
+    x = first["c"]["x"]
+    assert [v is None for v in stored["x"]] == (~np.isfinite(x)).tolist() and np.isnan(x).sum() >= 2
+    assert not np.any(np.isinf(x)) and first["c"]["n"].dtype.kind == "i" and first["c"]["ok"].dtype == bool
+    assert _bits(sw.sweep([("c", fn)], 12, key, path, chunk_size=4, progress=False)) == _bits(first)
+    assert _bits(sw.sweep([("c", fn)], 12, key, chunk_size=4, progress=False)) == _bits(first)

@@ -451,7 +451,7 @@ def _write_dataset(folder, measurement_rows):
 
 def test_a_non_finite_value_in_a_file_is_refused_with_its_place(tmp_path):
     """One ``inf`` range in a measurement file must not reach a filter (it would poison every later
-    estimate): the loader names the file, the data row and the column."""
+    estimate): the loader names the file, its line (comments counted) and the column."""
     good = tmp_path / "good"
     good.mkdir()
     _write_dataset(good, "0.05 63 1.5 0.1\n0.15 25 2.0 -0.2\n")
@@ -462,6 +462,6 @@ def test_a_non_finite_value_in_a_file_is_refused_with_its_place(tmp_path):
     _write_dataset(bad, "0.05 63 1.5 0.1\n0.15 25 inf -0.2\n")
     with pytest.raises(
         ValueError,
-        match=r"Robot1_Measurement.dat: 1 row\(s\) hold NaN or infinite values, the first is data row 2, column 3",
+        match=r"Robot1_Measurement.dat, line 3, column 3: inf is not a finite number \(1 line\(s\) hold NaN or infinite",
     ):
         mrclam.load_robot(1, bad)

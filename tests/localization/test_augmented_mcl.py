@@ -208,10 +208,12 @@ def test_degenerate_step_is_flagged_raises_injection_and_never_nan():
     """A step with zero likelihood everywhere (w_avg = 0) only decays both averages, so from
     w_slow = w_fast it gives p_inject = 1 − (1 − α_fast)/(1 − α_slow) exactly (0.18 here)."""
     config, params, control, obs = _one_step_inputs()
-    bad = obs._replace(z=obs.z.at[0].set(1e20))  # a range of 1e20 m: zero likelihood everywhere
+    # a NaN control moves every particle to NaN: zero weight everywhere (refused on the host, so
+    # passed inside a caller's jit)
+    bad = control.at[0].set(jnp.nan)
     state = am.init(jax.random.PRNGKey(0), config, params, START, jnp.full((3,), 0.1))
     state = state._replace(log_w_slow=jnp.float32(8.0), log_w_fast=jnp.float32(8.0))
-    new, info = am.step(jax.random.PRNGKey(1), state, config, params, control, bad)
+    new, info = jax.jit(lambda u: am.step(jax.random.PRNGKey(1), state, config, params, u, obs))(bad)
     assert bool(info.degenerate) and info.log_likelihood == -np.inf
     expected = 1.0 - (1.0 - config.alpha_fast) / (1.0 - config.alpha_slow)
     np.testing.assert_allclose(info.injection_probability, expected, rtol=1e-5)
@@ -294,7 +296,7 @@ def test_bad_params_and_state_are_refused_with_the_argument_named():
         am.run(key, state._replace(log_w_slow=jnp.zeros(2)), config, params, controls, obs)
     with pytest.raises(ValueError, match=r"state.particles must have shape \(50, 3\)"):
         am.run(key, state._replace(particles=state.particles[:3]), config, params, controls, obs)
-    with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
+    with pytest.raises(ValueError, match="params.sensor.sd must be finite and strictly positive"):
         am.run(
             key, state, config, params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), controls, obs
         )

@@ -379,15 +379,24 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
     assert np.all(np.isfinite(ref.estimate))
 
 
-def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan():
+def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan(monkeypatch):
+    """Every cell with zero likelihood keeps the prediction and flags the step. The validated
+    inputs cannot reach this branch (a Gaussian log-likelihood of a measurement within the
+    magnitude limit is finite, and a larger one is dropped), so the likelihood is replaced here."""
     params, sim = _params(), _sim()
-    bad = sim.observations._replace(z=sim.observations.z.at[1, 0].set(1e20))  # zero likelihood at step 1
-    final, trace = grid.run(None, grid.init(None, CONFIG, params, START), CONFIG, params, sim.controls, bad)
-    np.testing.assert_array_equal(np.flatnonzero(trace.degenerate), [1])
-    assert trace.log_likelihood[1] == -np.inf and np.all(np.isfinite(np.delete(np.asarray(trace.log_likelihood), 1)))
-    assert not np.any(np.isnan(final.log_belief)) and np.all(np.isfinite(trace.estimate))
-    # Step 1 kept its prediction: wider than the corrected beliefs around it.
-    assert trace.entropy[1] > trace.entropy[0] and trace.entropy[1] > trace.entropy[2]
+    state = grid.init(None, CONFIG, params, START)
+    control, obs = sim.controls[0], jax.tree_util.tree_map(lambda x: x[0], sim.observations)
+
+    def nowhere(config, params, obs):
+        return jnp.full(config.shape, -jnp.inf), jnp.zeros((), jnp.int32)
+
+    monkeypatch.setattr(grid, "cell_log_likelihood", nowhere)
+    new, info = grid.kernel(None, state, CONFIG, params, control, obs)
+    assert bool(info.degenerate) and info.log_likelihood == -np.inf
+    predicted = np.asarray(grid.predict(state, CONFIG, params, control))
+    predicted = predicted - np.log(np.sum(np.exp(predicted.astype(np.float64))))
+    np.testing.assert_allclose(np.asarray(new.log_belief), predicted, rtol=1e-5, atol=1e-5)
+    assert np.all(np.isfinite(np.asarray(info.estimate)))
 
 
 def test_mass_leaving_the_grid_is_reported_and_a_fully_lost_belief_resets_to_uniform():
@@ -456,7 +465,7 @@ def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
     params, sim = _params(), _sim()
     state = grid.init(None, CONFIG, params, START)
     run = lambda p=params, c=sim.controls, o=sim.observations, s=state: grid.run(None, s, CONFIG, p, c, o)  # noqa: E731
-    with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
+    with pytest.raises(ValueError, match="params.sensor.sd must be finite and strictly positive"):
         run(p=params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.1, 0.0]))))
     with pytest.raises(ValueError, match="motion noise alphas must be finite and non-negative"):
         run(p=params._replace(motion=params.motion._replace(alphas=-params.motion.alphas)))
@@ -464,7 +473,7 @@ def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
         run(p=params._replace(motion=motion.OmniNoise(jnp.ones(3))))
     with pytest.raises(ValueError, match=r"params.landmarks must have shape \(\*, 2\)"):
         run(p=params._replace(landmarks=jnp.zeros((3, 3))))
-    with pytest.raises(ValueError, match="params.landmarks contains NaN"):
+    with pytest.raises(ValueError, match="params.landmarks holds 1 value.* not finite"):
         run(p=params._replace(landmarks=params.landmarks.at[0, 0].set(jnp.nan)))
     with pytest.raises(ValueError, match="params must be a GridParams"):
         run(p=tuple(params))
@@ -472,7 +481,7 @@ def test_bad_params_state_and_inputs_are_refused_with_the_argument_named():
         grid.run(None, state, mcl.MCLConfig(), params, sim.controls, sim.observations)
     with pytest.raises(ValueError, match="observations must be a RangeBearingObs"):
         run(o=tuple(sim.observations))
-    with pytest.raises(ValueError, match="controls contains NaN"):
+    with pytest.raises(ValueError, match="controls holds 1 value.* not finite"):
         run(c=sim.controls.at[1, 0].set(jnp.nan))
     with pytest.raises(ValueError, match=r"controls must have shape \(\*, 3\)"):
         run(c=jnp.zeros((3, 4)))

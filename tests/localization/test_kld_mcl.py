@@ -194,8 +194,10 @@ def test_degenerate_step_resets_only_active_weights_and_never_nan():
     config, params, state = r["config"], r["params"], r["final"]
     t = STEPS - 1
     obs = jax.tree_util.tree_map(lambda x: x[t], r["obs"])
-    bad = obs._replace(z=obs.z.at[0].set(1e20))  # a range of 1e20 m: zero likelihood everywhere
-    new, info = kld.step(jax.random.PRNGKey(0), state, config, params, r["controls"][t], bad)
+    # a NaN control moves every particle to NaN: zero weight everywhere (refused on the host, so
+    # passed inside a caller's jit)
+    bad = r["controls"][t].at[0].set(jnp.nan)
+    new, info = jax.jit(lambda u: kld.step(jax.random.PRNGKey(0), state, config, params, u, obs))(bad)
     assert bool(info.degenerate) and info.log_likelihood == -np.inf
     # uniform over the n_{t-1} active particles only; a degenerate step reports ESS 0 (weights.step_ess)
     assert float(info.ess) == 0.0
@@ -285,7 +287,7 @@ def test_bad_state_and_params_are_refused_with_the_argument_named():
         run(s=state._replace(particles=state.particles[:3]))
     with pytest.raises(ValueError, match="state must be a KLDMCLState"):
         run(s=mcl.MCLState(state.particles, state.log_weights))
-    with pytest.raises(ValueError, match="sensor noise sd must be finite and strictly positive"):
+    with pytest.raises(ValueError, match="params.sensor.sd must be finite and strictly positive"):
         run(p=params._replace(sensor=lm.RangeBearingNoise(jnp.asarray([0.0, 0.1]))))
     with pytest.raises(ValueError, match="bounds must satisfy"):
         kld.init_uniform(key, config, params, (0.0, 1.0, 2.0, 1.0))

@@ -366,7 +366,7 @@ def test_bad_input_and_single_compilation(getkey):
     with pytest.raises(ValueError, match="observation_model"):
         fs.FastSLAMConfig(observation_model="sonar")
     cfg = fs.FastSLAMConfig(num_particles=8, num_landmarks=8)
-    with pytest.raises(ValueError, match="sensor noise sd"):
+    with pytest.raises(ValueError, match="sensor.sd"):
         fs.init(getkey(), cfg, fs.FastSLAMParams(MOTION, lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), X0)
     state = fs.init(getkey(), cfg, PARAMS, X0)
     sims = _sims(getkey(), 2, 10)

@@ -6,7 +6,11 @@ the mean over ``R`` seeded runs with its 95 % interval
 (:func:`jaxnav.experiments.stats.mean_ci`); a run with nothing to score at a
 point (no tag mapped, no tag detected that often) is NaN there, left out of
 the point's mean and counted in the curve's ``unscored_runs`` (present only
-when some point has such runs). [W] prints these figures as images only, so the result carries no
+when some point has such runs). A run that diverged (robot errors, tag-error
+sums or an error over time that are not finite) is left out of every point
+it belongs to and counted in the curve's ``diverged_runs`` (one count per
+point, always present; ``runs`` holds the runs per point), and the tables
+say "k of R runs diverged" at those points. [W] prints these figures as images only, so the result carries no
 thesis numbers; the claim each figure supports is in ``notes`` and is what
 the tests check:
 
@@ -37,7 +41,7 @@ from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
 from jaxnav.experiments.hf_slam import simulation as hf
 from jaxnav.experiments.hf_slam.simulation import NOTHING_MAPPED
-from jaxnav.experiments.hf_slam.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, quick_setting
+from jaxnav.experiments.hf_slam.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, diverged_in, quick_setting
 from jaxnav.sim import tag_carpet as tc
 
 __all__ = ["curve_experiment", "DETECTION_BINS", "PARTICLES", "READER_SIDES", "EXPERIMENTS"]
@@ -50,16 +54,19 @@ READER_SIDES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
 """Fig. 4.4: reader footprint sides (m)."""
 
 
-def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray]) -> dict:
-    """``{"x", "mean", "ci95"}`` of one curve from per-point arrays of per-run values (NaN = no value),
-    with ``"unscored_runs"`` per point when a point has runs without a value."""
-    means, cis, unscored = [], [], []
-    for values in per_run:
-        s = stats.summarize(values)
+def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray], diverged: Sequence[np.ndarray]) -> dict:
+    """``{"x", "mean", "ci95", "runs", "diverged_runs"}`` of one curve from per-point arrays of per-run values
+    (NaN = no value) and per-point masks of the runs that diverged (left out, counted), with
+    ``"unscored_runs"`` per point when a point has runs without a value."""
+    means, cis, unscored, runs, gone = [], [], [], [], []
+    for values, mask in zip(per_run, diverged, strict=True):
+        s = stats.summarize(values, diverged=mask)
         means.append(s.mean)
         cis.append([s.lo, s.hi])
         unscored.append(s.unscored)
-    out = {"x": list(map(float, x)), "mean": means, "ci95": cis}
+        runs.append(s.runs)
+        gone.append(s.diverged)
+    out = {"x": list(map(float, x)), "mean": means, "ci95": cis, "runs": runs, "diverged_runs": gone}
     if any(unscored):
         out["unscored_runs"] = unscored
     return out
@@ -74,8 +81,24 @@ _NAN_TEXT = {
 
 def _points(c: dict) -> list[dict]:
     """The curve's points as ``{"mean", "ci95"[, "unscored_runs"]}`` summaries (for :mod:`jaxnav.experiments.report`)."""
-    unscored = c.get("unscored_runs", [0] * len(c["mean"]))
-    return [{"mean": m, "ci95": ci, "unscored_runs": k} for m, ci, k in zip(c["mean"], c["ci95"], unscored)]
+    n = len(c["mean"])
+    unscored = c.get("unscored_runs", [0] * n)
+    gone, runs = c.get("diverged_runs", [0] * n), c.get("runs", [None] * n)
+    return [
+        {"mean": m, "ci95": ci, "unscored_runs": k, "diverged_runs": d, "runs": r}
+        for m, ci, k, d, r in zip(c["mean"], c["ci95"], unscored, gone, runs)
+    ]
+
+
+def _diverged_text(c: dict) -> str:
+    """``"2 of 8 runs diverged …"`` for a curve whose points all pool the same runs (the kidnapping's, fig-3.5's),
+    ``"diverged runs at some points …"`` otherwise; ``""`` when no run diverged."""
+    gone, runs = c.get("diverged_runs", []), c.get("runs", [])
+    if not any(gone):
+        return ""
+    if len(set(gone)) == 1 and len(set(runs)) == 1:
+        return f"{report.diverged_note(gone[0], runs[0])} (non-finite results): left out of every point"
+    return "runs diverged at some points (non-finite results): left out of those points, counted there"
 
 
 def render_curves(result: dict) -> str:
@@ -97,6 +120,8 @@ def render_curves(result: dict) -> str:
                 f"    mean error over the 5 s before: {report.number(c['before_mm'], 1)} mm, "
                 f"over 5–15 s after: {report.number(c['after_mm'], 1)} mm"
             )
+        if note := _diverged_text(c):
+            lines.append(f"    {note}")
     if result.get("notes"):
         lines.append(result["notes"])
     return "\n".join(lines)
@@ -206,9 +231,11 @@ def _fig35_cells(quick):
 
 def _fig35_summary(raw, cells, quick):
     r = raw["pf_slam"]
+    diverged = stats.diverged_runs(r["sums"], r["counts"])  # the sums are 0, never NaN, where nothing was detected
     per_run = np.where(r["counts"] > 0, r["sums"] / np.maximum(r["counts"], 1), np.nan)  # [R, bins]
-    curve = _summaries(DETECTION_BINS, [per_run[:, k] for k in range(per_run.shape[1])])
-    curve["samples"] = r["counts"].sum(axis=0).tolist()
+    bins = range(per_run.shape[1])
+    curve = _summaries(DETECTION_BINS, [per_run[:, k] for k in bins], [diverged] * len(bins))
+    curve["samples"] = np.asarray(r["counts"])[~diverged].sum(axis=0).astype(int).tolist()
     return [{"method": "pf_slam", "quantity": "tag error after the n-th detection (mm)", **curve}]
 
 
@@ -243,8 +270,10 @@ def _fig37_summary(raw, cells, quick):
     for method in ("pf_slam", "fastslam"):
         members = [c for c in cells if c.method == method]
         xs = [c.setting.robot_particles for c in members]
+        diverged = [diverged_in(raw[c.id]) for c in members]
         for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
-            curves.append({"method": method, "quantity": label, **_summaries(xs, [raw[c.id][col] for c in members])})
+            per_point = [raw[c.id][col] for c in members]
+            curves.append({"method": method, "quantity": label, **_summaries(xs, per_point, diverged)})
     return curves
 
 
@@ -282,12 +311,13 @@ def _fig44_summary(raw, cells, quick):
     curves = []
     for method in ("ps_slam", "pf_slam", "fastslam"):
         sides = sorted({c.setting.reader_side for c in cells if c.method == method})
+        at = [[c for c in cells if c.method == method and c.setting.reader_side == s] for s in sides]
+        diverged = [np.concatenate([diverged_in(raw[c.id]) for c in members]) for members in at]
         for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
-            per_point = [
-                np.concatenate([raw[c.id][col] for c in cells if c.method == method and c.setting.reader_side == s])
-                for s in sides
-            ]
-            curves.append({"method": method, "quantity": label, **_summaries([1000 * s for s in sides], per_point)})
+            per_point = [np.concatenate([raw[c.id][col] for c in members]) for members in at]
+            curves.append(
+                {"method": method, "quantity": label, **_summaries([1000 * s for s in sides], per_point, diverged)}
+            )
     return curves
 
 
@@ -334,7 +364,8 @@ def _kidnap_cells(quick):
 def _kidnap_summary(raw, cells, quick):
     curves = []
     for c in cells:
-        err = raw[c.id]["error_mm"]  # [R, T]
+        err = np.asarray(raw[c.id]["error_mm"], np.float64)  # [R, T]
+        diverged = stats.diverged_runs(err)
         k = int(raw[c.id]["kidnap_step"][0])
         steps = err.shape[1]
         window = range(max(0, k - 100), min(steps, k + 300), 5)
@@ -343,9 +374,9 @@ def _kidnap_summary(raw, cells, quick):
             {
                 "method": c.method,
                 "quantity": "robot error (mm)",
-                **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window]),
-                "before_mm": stats.mean_ci(err[:, max(0, k - 50) : k].mean(axis=1))[0],
-                "after_mm": stats.mean_ci(err[:, k + 50 : k + 150].mean(axis=1))[0],
+                **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window], [diverged] * len(window)),
+                "before_mm": stats.summarize(err[:, max(0, k - 50) : k].mean(axis=1), diverged=diverged).mean,
+                "after_mm": stats.summarize(err[:, k + 50 : k + 150].mean(axis=1), diverged=diverged).mean,
             }
         )
     return curves

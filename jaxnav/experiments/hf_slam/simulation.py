@@ -67,6 +67,8 @@ __all__ = [
     "NOTHING_MAPPED",
     "make_world",
     "reachable_tags",
+    "num_steps",
+    "memory_estimate",
     "run_method",
     "fastslam_parallel_slots",
     "filter_world",
@@ -88,8 +90,10 @@ class HFSetting:
     """A simulated HF-RFID SLAM setting (hashable: a static argument of jitted functions).
 
     Attributes:
-        density: tags/m² (100, 16, 4 in [W]).
-        reader_side: footprint side (m): 0.06 ([W] ch. 3), 0.1–0.5 ([W] §4.4.3).
+        density: tags/m² (100, 16, 4 in [W]); its pitch ``1/√density`` must exceed twice the
+            installation jitter (neighbours could swap places) and fit on the carpet.
+        reader_side: footprint side (m): 0.06 ([W] ch. 3), 0.1–0.5 ([W] §4.4.3); at most the
+            carpet's shorter side.
         trajectory: "rectangle" (driven ``laps`` times), "random" or "kidnapping" ([W] §3.4.3).
         carpet: ``(w, h)`` of the carpet (m), from the origin.
         rectangle: ``(x0, y0, width, height)`` of the rectangle (m).
@@ -132,6 +136,7 @@ class HFSetting:
                 raise ValueError(f"{name} must be a number > 0, got {value!r}")
         for name in ("laps", "random_steps", "robot_particles", "tag_particles", "lag"):
             check_positive_int(name, getattr(self, name))
+        self._check_carpet()
         check_choice("fastslam_version", self.fastslam_version, (1, 2))
         if len(self.odometry_sd) != 3 or any(not (s >= 0) for s in self.odometry_sd):
             raise ValueError(f"odometry_sd must be three numbers ≥ 0, got {self.odometry_sd!r}")
@@ -141,6 +146,33 @@ class HFSetting:
             raise ValueError(f"rectangle {self.rectangle!r} must lie inside the carpet (0, 0)–{self.carpet!r}")
         if self.smoother_jitter is not None and not self.smoother_jitter >= 0:
             raise ValueError(f"smoother_jitter must be ≥ 0 m or None, got {self.smoother_jitter!r}")
+
+    def _check_carpet(self) -> None:
+        """The carpet, its density and the readers must make a lattice the readers can drive over."""
+        if len(self.carpet) != 2 or not all(
+            isinstance(c, (int, float)) and math.isfinite(c) and c > 0 for c in self.carpet
+        ):
+            raise ValueError(f"carpet must be (width, height), two numbers > 0 m, got {self.carpet!r}")
+        j = self.installation_jitter
+        if not (isinstance(j, (int, float)) and math.isfinite(j) and j >= 0):
+            raise ValueError(f"installation_jitter must be a number ≥ 0 m, got {j!r}")
+        side = min(self.carpet)
+        pitch = tc.density_to_pitch(self.density)
+        if j > 0 and pitch <= 2.0 * j:  # neighbours could swap places: the lattice order is lost
+            raise ValueError(
+                f"density {self.density:g} tags/m² gives a pitch of {1000 * pitch:.3g} mm, not more than twice the "
+                f"installation jitter ({1000 * j:g} mm): the density must be below {1 / (2 * j) ** 2:g} tags/m²"
+            )
+        if pitch > side:
+            raise ValueError(
+                f"density {self.density:g} tags/m² gives a pitch of {pitch:.3g} m, more than the carpet's shorter side "
+                f"({side:g} m): the density must be at least {1 / side**2:.3g} tags/m² to lay a lattice of tags"
+            )
+        if self.reader_side > side:
+            raise ValueError(
+                f"reader_side {self.reader_side:g} m is larger than the carpet's shorter side ({side:g} m): "
+                f"a reader footprint must fit on the carpet ([W] uses 0.06 to 0.5 m)"
+            )
 
     @property
     def pitch(self) -> float:
@@ -268,6 +300,45 @@ def reachable_tags(setting: HFSetting) -> np.ndarray:
         t = np.clip(((pos - a) @ (b - a)) / np.dot(b - a, b - a), 0.0, 1.0)
         dist = np.minimum(dist, np.linalg.norm(pos - (a + t[:, None] * (b - a)), axis=1))
     return ids[dist <= reach]
+
+
+def num_steps(setting: HFSetting) -> int:
+    """The number of filter steps of the setting's trajectory, from its sizes alone (no arrays built).
+
+    Exact for the rectangle and the random trajectory (:mod:`jaxnav.sim.trajectories`); for the
+    kidnapping, an upper bound (a lap up to the kidnapping, one on to the end of its lap, then ``laps`` laps).
+    """
+    if setting.trajectory == "random":
+        return setting.random_steps
+    _, _, w, h = setting.rectangle
+    edges = 2 * sum(max(1, round(length / (setting.speed * setting.dt))) for length in (w, h))
+    turns = 4 * max(1, round((math.pi / 2) / (math.pi / 4) / setting.dt))
+    laps = setting.laps + (2 if setting.trajectory == "kidnapping" else 0)
+    return laps * (edges + turns)
+
+
+def memory_estimate(method: str, setting: HFSetting) -> int:
+    """Bytes one run of ``method`` on ``setting`` holds at once, estimated from the sizes alone.
+
+    The recorded run (``T`` steps of ``K`` detection slots, :func:`jaxnav.sim.tag_carpet.detection_capacity`),
+    the tag table (PF-SLAM and PS-SLAM: ``num_tags × J`` particles, times the lag for PS-SLAM) or
+    FastSLAM's per-particle maps, and the arrays of one step (``K × K`` slot groups, ``I × K``
+    robot weights, ``K × J`` tag updates), at 4 bytes a number, doubled for XLA's temporaries.
+    A rough figure (within a few times), to refuse sizes that cannot fit.
+    """
+    check_choice("method", method, METHODS)
+    layout = setting.layout
+    k = tc.detection_capacity(layout, setting.reader_side, hf_rfid.default_reader_offsets())
+    t, n = num_steps(setting), layout.num_tags
+    i, j = setting.robot_particles, setting.tag_particles
+    run = t * (3 * k + 16)  # detections (ids, readers, mask), poses, odometry and the trace
+    step = k * k + i * k + 8 * k * j + 8 * i
+    if method == "fastslam":
+        # per particle: each reachable tag's mean (2), covariance (4) and count, and the resampled copy
+        table = 2 * i * len(reachable_tags(setting)) * 7
+    else:
+        table = n * j * 3 * (1 + (2 * setting.lag if method == "ps_slam" else 0))
+    return 4 * 2 * (run + step + table)
 
 
 def fastslam_parallel_slots(setting: HFSetting) -> int:

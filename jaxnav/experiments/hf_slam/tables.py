@@ -6,7 +6,10 @@ run. The per-run errors are those of :func:`jaxnav.experiments.hf_slam.simulatio
 (robot x, y, θ, distance over all steps; tag x, y, distance at the end, mm
 and rad). A run that mapped no tag has no tag errors (NaN): it is left out
 of the tag columns' means and counted in their ``unscored_runs``, and a
-column no run could score reads "n/a (nothing mapped)". Settings and noise
+column no run could score reads "n/a (nothing mapped)". A run whose robot
+errors are not finite diverged: it is left out of every column of its row,
+counted in the row's ``diverged_runs`` (always present) and named under the
+table ("2 of 100 runs diverged"). Settings and noise
 levels are listed in :mod:`jaxnav.experiments.hf_slam.simulation`; the quick
 variants shorten the trajectory and cut the particles so that the test suite
 runs them in seconds. The four tables are :data:`EXPERIMENTS`.
@@ -29,6 +32,8 @@ __all__ = [
     "TableRow",
     "table_experiment",
     "summarize_column",
+    "diverged_in",
+    "ROBOT_COLUMNS",
     "QUICK",
     "quick_setting",
     "setting_label",
@@ -38,6 +43,9 @@ __all__ = [
 ]
 
 METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
+
+ROBOT_COLUMNS = tuple(c for c in ERROR_COLUMNS if c not in TAG_COLUMNS)
+"""The error columns every run has (robot x, y, θ, dr): a non-finite one means the run diverged."""
 
 QUICK = dict(robot_particles=100, tag_particles=30, laps=1, random_steps=300)
 """What the quick variants change: particles, laps, random-trajectory length (and a smaller world)."""
@@ -79,10 +87,15 @@ def quick_setting(s: hf.HFSetting) -> hf.HFSetting:
     )
 
 
-def summarize_column(values: np.ndarray, paper: float | None) -> dict:
-    """``{"mean", "ci95": [lo, hi], "paper"}`` of one column's per-run values (and ``"unscored_runs"``
-    when some runs have no value: :func:`jaxnav.experiments.stats.column_summary`)."""
-    s = stats.column_summary(values)
+def diverged_in(values: dict) -> np.ndarray:
+    """``[R]``: the runs of per-run errors ``{column: [R]}`` whose robot errors are not finite (diverged)."""
+    return stats.diverged_runs(*(values[c] for c in ROBOT_COLUMNS))
+
+
+def summarize_column(values: np.ndarray, paper: float | None, diverged: np.ndarray | None = None) -> dict:
+    """``{"mean", "ci95": [lo, hi], "paper"}`` of one column's per-run values, the ``diverged`` runs left
+    out (and ``"unscored_runs"`` when other runs have no value: :func:`jaxnav.experiments.stats.column_summary`)."""
+    s = stats.column_summary(values, diverged)
     out = {"mean": s["mean"], "ci95": s["ci95"], "paper": paper}
     if "unscored_runs" in s:
         out["unscored_runs"] = s["unscored_runs"]
@@ -106,15 +119,18 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
         out_rows = []
         for row in rows:
             members = [c for c in cell_list if c.row == row.label and c.method == row.method]
+            values = {col: np.concatenate([raw[c.id][col] for c in members]) for col in ERROR_COLUMNS}
+            diverged = diverged_in(values)
             entry = {
                 "row": row.label,
                 "setting": setting_label(members[0].setting),
                 "method": row.method,
                 "cells": len(members),
+                "runs": int(diverged.size),
+                "diverged_runs": int(diverged.sum()),
             }
             for col, paper in zip(ERROR_COLUMNS, row.paper):
-                values = np.concatenate([raw[c.id][col] for c in members])
-                entry[col] = summarize_column(values, paper)
+                entry[col] = summarize_column(values[col], paper, diverged)
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
@@ -145,6 +161,17 @@ def _setting_text(s: dict, short: bool) -> str:
     return f"{s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']}"
 
 
+def _diverged_footer(result: dict) -> list[str]:
+    """One line per row with diverged runs (``"16 tags/m², 60 mm, rectangle, PF-SLAM: 2 of 100 runs diverged …"``)."""
+    lines = []
+    for r in result["rows"]:
+        label = f"{_setting_text(r['setting'], False)}, {METHOD_LABELS[r['method']]}"
+        runs = r.get("runs", result["runs"] * r.get("cells", 1))
+        if line := report.diverged_line(label, r.get("diverged_runs", 0), runs):
+            lines.append(line)
+    return lines
+
+
 def render_table(result: dict) -> str:
     """Terminal table: per row, ours (mean ± half-interval) and [W]'s value."""
     title = [
@@ -159,7 +186,7 @@ def render_table(result: dict) -> str:
         paper = [report.number(r[c]["paper"], _digits(c)) for c in ERROR_COLUMNS]
         rows.append([_setting_text(r["setting"], True), METHOD_LABELS[r["method"]], "ours", *ours])
         rows.append(["", "", "[W]", *paper])
-    return report.text(columns, rows, title)
+    return report.text(columns, rows, title, _diverged_footer(result))
 
 
 def markdown_table(result: dict) -> str:
@@ -176,7 +203,7 @@ def markdown_table(result: dict) -> str:
             for c in ERROR_COLUMNS
         ]
         rows.append([_setting_text(r["setting"], False), METHOD_LABELS[r["method"]], *cells])
-    return report.markdown(["setting", "method", *COLUMN_HEADS], rows, title)
+    return report.markdown(["setting", "method", *COLUMN_HEADS], rows, title, _diverged_footer(result))
 
 
 def plot_table(result: dict, path: str) -> None:

@@ -73,6 +73,9 @@ __all__ = [
     "Drive",
     "drive_once",
     "format_errors",
+    "describe_start",
+    "num_steps",
+    "memory_estimate",
     "plot_drive",
     "score",
 ]
@@ -240,6 +243,31 @@ def _loop_length() -> float:
     return float(np.sum(np.linalg.norm(np.diff(np.concatenate([wp, wp[:1]]), axis=0), axis=1)))
 
 
+def num_steps(s: IRSetting) -> int:
+    """About how many steps the drive of ``s`` has, from its sizes alone (no path is built).
+
+    Exact for the loop and the rotation; for the spot tour, the stays plus the legs driven
+    through the spots in grid order (an estimate). With ``s.num_steps`` the drive is padded to it.
+    """
+    if s.drive == "loop":
+        natural = int(math.ceil(s.laps * (_loop_length() / s.speed / s.dt)))  # as path_and_record
+    elif s.drive == "rotation":
+        natural = _rotation_steps(s)
+    else:
+        nx, ny = s.spots
+        points = np.concatenate([np.asarray(LEAD_IN), ir_world.spot_grid(nx, ny, x=(2.9, 0.3))])
+        length = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+        natural = int(math.ceil(length / s.speed / s.dt + nx * ny * (s.dwell / s.dt + 1) + len(points)))
+    return natural if s.num_steps is None else max(natural, s.num_steps)
+
+
+def memory_estimate(s: IRSetting) -> int:
+    """Bytes one drive of ``s`` holds at once, estimated from its sizes: about 200 bytes a step for the
+    simulated drive and the filter's trace, and 64 numbers a particle for one step's arrays, doubled
+    for XLA's temporaries. A rough figure (within a few times), to refuse sizes that cannot fit."""
+    return 2 * (256 * num_steps(s) + 4 * 64 * s.num_particles)
+
+
 def _rotation_steps(s: IRSetting) -> int:
     wp = ir_world.ROTATION_WAYPOINTS
     d_xy = np.linalg.norm(np.diff(wp[:, :2], axis=0), axis=1)
@@ -401,13 +429,28 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
 
 
 def format_errors(rows: Sequence[tuple[str, IRErrors]]) -> str:
-    """A small table of average and maximum errors per row (mm, rad)."""
+    """A small table of average and maximum errors per row (mm, rad).
+
+    A filter that never started (``start_s`` NaN) has only the meaningless mean of its
+    uniform cloud: its cells read ``n/a`` (:func:`describe_start` says why).
+    """
     columns = [report.Column("", 10, "<")] + [report.Column(h, 10) for h in COLUMN_HEADS]
     columns += [report.Column("max " + h, 14) for h in COLUMN_HEADS]
-    cells = [
-        [name] + [report.number(float(v), _digits(c)) for c, v in zip(COLUMNS + COLUMNS, e[:8])] for name, e in rows
-    ]
+    cells = []
+    for name, e in rows:
+        never = not math.isfinite(float(e.start_s))
+        cells.append(
+            [name]
+            + [report.NA if never else report.number(float(v), _digits(c)) for c, v in zip(COLUMNS + COLUMNS, e[:8])]
+        )
     return report.text(columns, cells, rule=False)
+
+
+def describe_start(e: IRErrors) -> str:
+    """When the filter started and how often it re-drew its particles after that, in words."""
+    if not math.isfinite(float(e.start_s)):
+        return "localization never started (no unique ID was decoded)"
+    return f"localization started at {float(e.start_s):.1f} s, {int(e.restarts)} re-draws after it"
 
 
 def _digits(col: str) -> int:

@@ -28,7 +28,10 @@ maximum ([W]'s maximum is that of its single run). Runs with nothing to
 score (NaN: no scored record) are left out and counted in
 ``unscored_runs``; ``start_s`` is the mean over the runs whose filter
 started, with ``never_started_runs`` counting the others (both keys appear
-only when nonzero).
+only when nonzero). A run whose errors are not finite although its drive has
+scored records diverged: it is left out of every column of its row (errors,
+maxima, median, restarts, start) and counted in the row's ``diverged_runs``
+(always present), and the tables name it ("2 of 20 runs diverged").
 
 Batching: the runs of a chunk are evaluated one after the other inside one
 compiled ``lax.map`` (``Experiment.batching = "map"``): the filter's start is
@@ -60,7 +63,7 @@ from jaxnav.experiments.ir.positioning import (
     run_once,
 )
 
-__all__ = ["IRRow", "ir_experiment", "summarize_errors", "INSTALLATION_SDS", "EXPERIMENTS"]
+__all__ = ["IRRow", "ir_experiment", "summarize_errors", "diverged_in", "INSTALLATION_SDS", "EXPERIMENTS"]
 
 
 @dataclass(frozen=True)
@@ -108,22 +111,35 @@ def _padded(rows: Sequence[IRRow], quick: bool) -> list[IRSetting]:
     return [replace(s, num_steps=longest[s.drive]) for s in settings]
 
 
-def summarize_errors(values: dict, paper: tuple | None, paper_max: tuple | None) -> dict:
+def diverged_in(values: dict, scored: bool = True) -> np.ndarray:
+    """``[R]``: the runs of per-run :class:`~jaxnav.experiments.ir.positioning.IRErrors` fields whose errors
+    are not finite although the drive has scored records (``scored``; without any, NaN means nothing to score)."""
+    errors = [values[c] for c in COLUMNS] + [values[c + "_max"] for c in COLUMNS]
+    if scored:
+        return stats.diverged_runs(*errors)
+    return np.zeros(np.shape(errors[0])[0], bool)
+
+
+def summarize_errors(
+    values: dict, paper: tuple | None, paper_max: tuple | None, diverged: np.ndarray | None = None
+) -> dict:
     """Per column: ``{"mean", "ci95": [lo, hi], "median", "max", "max_ci95", "paper", "paper_max"}``.
 
     ``mean``, ``ci95`` and ``median`` are over the runs' averages (the median shows a run
     that lost the robot for what it is: one run, not a shift of all); ``max`` is the
-    mean over runs of each run's maximum. Runs without a value (NaN: nothing scored) are
-    left out of all of them and counted in ``"unscored_runs"`` (present only when nonzero).
+    mean over runs of each run's maximum. The ``diverged`` runs (``[R]`` booleans) are left
+    out of all of them (the row counts them); other runs without a value (NaN: nothing scored)
+    are left out too and counted in ``"unscored_runs"`` (present only when nonzero).
     """
+    gone = np.zeros(np.shape(values[COLUMNS[0]])[0], bool) if diverged is None else np.asarray(diverged, bool)
     out = {}
     for i, col in enumerate(COLUMNS):
-        avg = stats.summarize(values[col])
-        worst = stats.summarize(values[col + "_max"])
+        avg = stats.summarize(values[col], diverged=gone)
+        worst = stats.summarize(values[col + "_max"], diverged=gone)
         out[col] = {
             "mean": avg.mean,
             "ci95": [avg.lo, avg.hi],
-            "median": stats.finite_median(values[col]),
+            "median": stats.finite_median(np.asarray(values[col])[~gone])[0],
             "max": worst.mean,
             "max_ci95": [worst.lo, worst.hi],
             "paper": None if paper is None else paper[i],
@@ -177,9 +193,12 @@ def ir_experiment(
                 entry["speed_mm_s"] = round(1000 * row.setting.speed, 3)
             if row_key == "installation_mm":
                 entry["installation_mm"] = round(1000 * row.setting.installation_sd, 3)
-            entry.update(summarize_errors(vals, row.paper, row.paper_max))
-            entry["restarts"] = float(np.mean(vals["restarts"]))
-            entry["start_s"], never = stats.finite_mean(vals["start_s"])
+            diverged = diverged_in(vals, scored=bool(np.any(np.asarray(cell.args[0].record) >= 0)))
+            kept = ~diverged
+            entry["runs"], entry["diverged_runs"] = int(diverged.size), int(diverged.sum())
+            entry.update(summarize_errors(vals, row.paper, row.paper_max, diverged))
+            entry["restarts"] = stats.finite_mean(np.asarray(vals["restarts"])[kept])[0]
+            entry["start_s"], never = stats.finite_mean(np.asarray(vals["start_s"])[kept])
             if never:
                 entry["never_started_runs"] = never
             out_rows.append(entry)
@@ -195,6 +214,18 @@ def _digits(col: str) -> int:
 def _never_started(r: dict, runs: int) -> str:
     k = r.get("never_started_runs", 0)
     return f"{r['row']}: the filter never started in {k} of {runs} runs" if k else ""
+
+
+def _footer(result: dict) -> list[str]:
+    """Per row, its diverged runs and the runs whose filter never started; then the notes."""
+    lines = []
+    for r in result["rows"]:
+        lines.append(report.diverged_line(r["row"], r.get("diverged_runs", 0), r.get("runs", result["runs"])))
+        lines.append(_never_started(r, result["runs"]))
+    lines = [line for line in lines if line]
+    if result.get("notes"):
+        lines.append(result["notes"])
+    return lines
 
 
 def render_table(result: dict) -> str:
@@ -218,10 +249,7 @@ def render_table(result: dict) -> str:
             paper = [report.number(r[c]["paper"], _digits(c)) for c in COLUMNS]
             paper += [report.number(r[c]["paper_max"], _digits(c)) for c in COLUMNS]
             rows.append(["", "[W]", *paper, ""])
-    footer = [line for r in result["rows"] if (line := _never_started(r, result["runs"]))]
-    if result.get("notes"):
-        footer.append(result["notes"])
-    return report.text(columns, rows, title, footer)
+    return report.text(columns, rows, title, _footer(result))
 
 
 def markdown_table(result: dict) -> str:
@@ -244,10 +272,7 @@ def markdown_table(result: dict) -> str:
             for c in COLUMNS
         ]
         rows.append([r["row"], *avg, *mx, report.number(r["dr_mm"].get("median"), 0)])
-    footer = [line for r in result["rows"] if (line := _never_started(r, result["runs"]))]
-    if result.get("notes"):
-        footer.append(result["notes"])
-    return report.markdown(heads, rows, title, footer)
+    return report.markdown(heads, rows, title, _footer(result))
 
 
 def plot_table(result: dict, path: str) -> None:

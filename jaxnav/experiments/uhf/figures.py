@@ -18,7 +18,10 @@ beside ours where [A] gives one:
   refresh against a kernel (regularised) refresh.
 
 A run, the RMSE and its interval are those of
-:mod:`jaxnav.experiments.uhf.localization`.
+:mod:`jaxnav.experiments.uhf.localization`. A run whose position error is not
+finite at some step diverged: it is left out of its curve (RMSE, median, lost
+runs), counted per method in the result's ``diagnostics`` (``diverged_runs``,
+with ``runs``), and named under the tables ("2 of 100 runs diverged").
 
 Compilation: a cell runs :func:`~jaxnav.experiments.uhf.localization.run_once`
 ``(weightings, dims, M)`` with the setting's arrays
@@ -40,7 +43,7 @@ from dataclasses import replace
 import numpy as np
 
 from jaxnav.core.resampling import REFRESHES
-from jaxnav.experiments import report
+from jaxnav.experiments import report, stats
 from jaxnav.experiments.experiment import Cell, Experiment
 from jaxnav.experiments.uhf.localization import (
     ANCHOR_LAMBDAS,
@@ -118,10 +121,29 @@ def _curve_at(row: dict, frac: float) -> float:
 
 def _robust(result: dict, row: dict) -> tuple[float | None, str]:
     """The row's median final error and lost-run count from ``result["diagnostics"]`` (None, :data:`~jaxnav.experiments.report.NONE` if absent)."""
+    d = _diagnostics(result, row)
+    if d is None:
+        return None, report.NONE
+    return d["final_median_m"][row["method"]], str(d["final_lost_runs"][row["method"]])
+
+
+def _diagnostics(result: dict, row: dict) -> dict | None:
+    """The diagnostics of the row's setting that hold its method (None if absent)."""
     for d in result.get("diagnostics", ()):
         if d["setting"] == row["setting"] and row["method"] in d.get("final_median_m", {}):
-            return d["final_median_m"][row["method"]], str(d["final_lost_runs"][row["method"]])
-    return None, report.NONE
+            return d
+    return None
+
+
+def _diverged_footer(result: dict) -> list[str]:
+    """One line per row with diverged runs (``"light, 3D, …, phase: 2 of 100 runs diverged …"``)."""
+    lines = []
+    for r in result["rows"]:
+        d = _diagnostics(result, r) or {}
+        k = d.get("diverged_runs", {}).get(r["method"], 0)
+        if line := report.diverged_line(f"{_label(r['setting'])}, {r['method']}", k, d.get("runs", result["runs"])):
+            lines.append(line)
+    return lines
 
 
 def render_table(result: dict) -> str:
@@ -165,6 +187,7 @@ def render_table(result: dict) -> str:
             ]
         )
     footer = [f"  median: median over runs of the run's final error; lost: runs whose final error exceeds {FAILED_M} m"]
+    footer += [f"  {line}" for line in _diverged_footer(result)]
     if result.get("notes"):
         footer += ["", textwrap.fill(result["notes"], 120)]
     return report.text(columns, rows, title, footer)
@@ -208,7 +231,8 @@ def markdown_table(result: dict) -> str:
         )
     footer = [
         f"Median final error: median over runs of each run's final error (RMS over the last "
-        f"{FINAL_FRACTION:.0%} of steps); lost runs: final error above {FAILED_M} m."
+        f"{FINAL_FRACTION:.0%} of steps); lost runs: final error above {FAILED_M} m.",
+        *_diverged_footer(result),
     ]
     if result.get("notes"):
         footer.append(result["notes"])
@@ -308,13 +332,21 @@ def plot_anchor(result: dict, path: str) -> None:
 
 
 def _summarize_cells(raw: dict, cells: Sequence[Cell], methods: Sequence[str], paper_fn) -> dict:
+    """The rows (one per setting and method) and the diagnostics (one per setting) of the cells' runs.
+
+    A run whose position error is not finite at some step diverged: it is left out of its
+    row's RMSE, median and lost runs, and counted in the diagnostics' ``diverged_runs``
+    per method (always present; the tables name rows with diverged runs).
+    """
     rows, diagnostics = [], []
     for cell in cells:
         s, vals = cell.setting, raw[cell.id]
         setting = _setting_json(s)
+        errors = {w: np.asarray(vals[f"err_{w}"], np.float64) for w in methods}
+        kept = {w: ~stats.diverged_runs(e) for w, e in errors.items()}
         for w in methods:
-            err = np.asarray(vals[f"err_{w}"], np.float64)
-            curve, final = rmse_summary(err)
+            err = errors[w]
+            curve, final = rmse_summary(err[kept[w]])
             paper, note = paper_fn(s, w)
             rows.append(
                 {
@@ -326,11 +358,13 @@ def _summarize_cells(raw: dict, cells: Sequence[Cell], methods: Sequence[str], p
                 }
             )
         k = np.asarray(vals["gamma_k"], np.float64)
-        finals = {w: np.sqrt(final_mse(np.square(np.asarray(vals[f"err_{w}"], np.float64)))) for w in methods}
+        finals = {w: np.sqrt(final_mse(np.square(e[kept[w]]))) for w, e in errors.items()}
         diagnostics.append(
             {
                 "setting": setting,
-                "final_median_m": {w: float(np.median(f)) for w, f in finals.items()},
+                "runs": int(k.size),
+                "diverged_runs": {w: int(np.sum(~kept[w])) for w in methods},
+                "final_median_m": {w: stats.finite_median(f)[0] for w, f in finals.items()},
                 "final_lost_runs": {w: int(np.sum(f > FAILED_M)) for w, f in finals.items()},
                 "gamma_k_median": float(np.median(k)),
                 "gamma_theta_median": float(np.median(vals["gamma_theta"])),

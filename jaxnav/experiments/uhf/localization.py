@@ -45,9 +45,11 @@ Student-t interval of the mean squared error over the runs
 ``err²``) mapped through the square root, its lower end clipped at 0 (a
 monotone map keeps the interval's coverage). ``final_rmse_m`` is the same over
 the last :data:`FINAL_FRACTION` = 10 % of the steps: each run's mean squared
-error over those steps, then the root of their mean. The uniform prior's RMSE
-(the box centre as estimate, :func:`prior_rmse`) is the reference a method
-must beat: 0.90 m in 3D, 0.80 m in 2D.
+error over those steps, then the root of their mean. Every run given counts
+(a non-finite error makes the RMSE NaN): the experiments leave the runs that
+diverged out first and count them (:mod:`jaxnav.experiments.uhf.figures`).
+The uniform prior's RMSE (the box centre as estimate, :func:`prior_rmse`) is
+the reference a method must beat: 0.90 m in 3D, 0.80 m in 2D.
 
 The RMSE is what [A] plots, but it is ruled by the few runs in which Alg. 6
 locks onto a wrong mode and never leaves it. One mechanism, traced in a
@@ -346,7 +348,7 @@ def rmse_summary(err: np.ndarray, final_fraction: float = FINAL_FRACTION) -> tup
     """RMSE over time and over the last steps, with 95 % intervals (module docstring, "Summaries").
 
     Args:
-        err: ``[R, T]`` per-run errors (m).
+        err: ``[R, T]`` per-run errors (m); every run counts (``R = 0`` gives NaN).
         final_fraction: share of the last steps for the final RMSE.
 
     Returns:

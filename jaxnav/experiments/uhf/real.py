@@ -63,6 +63,7 @@ __all__ = [
     "channel_params",
     "anchor_gamma",
     "prior_rmse",
+    "memory_estimate",
     "localize",
     "format_results",
     "plot_results",
@@ -147,6 +148,19 @@ def prior_rmse(truth_xy: np.ndarray) -> float:
     lo, hi = np.asarray(BOX_LO), np.asarray(BOX_HI)
     mean, var = (lo + hi) / 2, (hi - lo) ** 2 / 12
     return float(np.sqrt(np.sum(var + (np.asarray(truth_xy) - mean) ** 2)))
+
+
+def memory_estimate(setting: RealSetting, seeds: int = 1) -> int:
+    """Bytes :func:`localize` holds at once, estimated from the sizes alone.
+
+    One step scores ``M`` particles against the ``8 · reads_per_channel`` slots of an aperture
+    point (about 8 numbers per pair); the reads of the 50 points, and every seed's estimates of
+    the 3 tags × 3 weightings; 4 bytes a number, doubled for XLA's temporaries. A rough
+    figure (within a few times), to refuse sizes that cannot fit.
+    """
+    j = len(adarf.CHANNELS_HZ) * setting.reads_per_channel
+    m = setting.num_particles
+    return 2 * 4 * (8 * m * j + 16 * m + 8 * adarf.NUM_POINTS * j + 9 * 4 * adarf.NUM_POINTS * seeds)
 
 
 def _params(setting: RealSetting, gamma: U.GammaParams) -> rfid_tag.RFIDTagParams:

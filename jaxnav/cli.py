@@ -229,7 +229,10 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
         try:
             seq, results = xp.run_robot(robot, algorithms, duration=args.duration, seed=args.seed, root=args.data)
         except ValueError as err:
-            raise ValueError(f"robot {robot}: {err}") from None
+            text = str(err)
+            if text.startswith("duration "):  # the Python argument is the --duration option here
+                text = "--" + text
+            raise ValueError(f"robot {robot}: {text}") from None
         rows += [(robot, r) for r in results]
         print(
             f"robot {robot}: {seq.controls.shape[0]} steps of {seq.dt:g} s, {seq.num_placed} measurements "

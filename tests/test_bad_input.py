@@ -110,7 +110,8 @@ def _ir_setup() -> Setup:
     layout = ir_world.experiment_layout()
     c = ir_mcl.IRMCLConfig(num_particles=32)
     params = ir_mcl.default_params(c, layout)
-    poses = ir_world.polyline_path(ir_world.EXPERIMENT_WAYPOINTS, speed=0.2, dt=0.1, num_steps=T)
+    # 16 steps: the receivers' first detections come at step 13
+    poses = ir_world.polyline_path(ir_world.EXPERIMENT_WAYPOINTS, speed=0.2, dt=0.1, num_steps=16)
     sim = ir_world.simulate(_key(5), layout, poses, 0.1)
     state = ir_mcl.init(_key(0), c, params, ir_world.layout_area(layout))
     return Setup(ir_mcl.run, state, c, params, (sim.controls, sim.detections), ("controls", "detections"))
@@ -425,6 +426,33 @@ def test_tag_slam_under_jit_survives_a_nan_odometry_row():
     assert bool(trace.degenerate[1])
 
 
+def _poison_reading(f: str, s: Setup, value: float) -> tuple[tuple, int]:
+    """``(inputs, t)``: the inputs with ``value`` in the first valid reading, at step ``t``."""
+    if f == "rfid_tag":
+        (reads,) = s.inputs
+        return (reads._replace(rssi=reads.rssi.at[1, 0].set(value)),), 1
+    if f == "rfid_anchor":
+        controls, reads = s.inputs
+        return (controls, reads._replace(phase=reads.phase.at[1, 0].set(value))), 1
+    controls, det = s.inputs
+    t, r = (int(i) for i in np.argwhere(np.asarray(det.valid))[0])
+    return (controls, det._replace(voltage=det.voltage.at[t, r].set(value))), t
+
+
+@pytest.mark.parametrize("value", [np.nan, 1e30])
+@pytest.mark.parametrize("f", ["rfid_tag", "rfid_anchor", "ir_mcl"])
+def test_an_unusable_reading_under_jit_is_dropped_and_counted(f, value):
+    """A NaN or absurd RSSI, phase or receiver level in a valid slot (refused on the host): under jit
+    the reading is dropped and counted in ``num_ignored``, and the outputs stay finite."""
+    s = setups()[f]
+    inputs, t = _poison_reading(f, s, value)
+    final, trace = _jit_run(s, inputs)
+    assert not _finite_outputs((final, trace)), _finite_outputs((final, trace))
+    _, clean = _jit_run(s, s.inputs)
+    steps = np.arange(np.shape(trace.num_ignored)[0])
+    np.testing.assert_array_equal(np.asarray(trace.num_ignored), np.asarray(clean.num_ignored) + (steps == t))
+
+
 # --------------------------------------------------------------------------- one argument at a time
 
 
@@ -521,3 +549,85 @@ def test_a_state_is_read_again_unless_it_is_the_one_just_returned():
     poisoned = state._replace(poses=state.poses.at[0, 0].set(jnp.nan))
     with pytest.raises(ValueError, match=r"state.poses holds 1 NaN or infinite value\(s\)"):
         step(_key(2), poisoned, s.config, s.params, u[2], one)
+
+
+# --------------------------------------------------------------------------- the simulators
+
+
+def _simulator_calls() -> dict[str, tuple[Callable[..., Any], dict[str, Any]]]:
+    """``name -> (simulate, keyword arguments)`` of every simulator, with small valid arguments."""
+    from jaxnav.sim import uhf_reader
+
+    p, controls, _ = _landmark_world()
+    path = np.stack([np.linspace(0, 1.5, T), np.full(T, -0.3), np.full(T, 0.5), np.full(T, np.pi / 2)], 1)
+    layout = ir_world.experiment_layout()
+    sensor = hf_rfid.reader_params(0.06)
+    carpet = tag_carpet.make_carpet(_key(3), (1.0, 1.0), density=16.0)
+    return {
+        "landmark_world": (
+            world.simulate,
+            dict(
+                key=_key(0),
+                landmarks=np.asarray(p.landmarks),
+                initial_pose=np.asarray(START),
+                controls=np.asarray(controls),
+                motion_noise=p.motion,
+                sensor_noise=p.sensor,
+            ),
+        ),
+        "uhf_reader": (
+            uhf_reader.simulate_reads,
+            dict(key=_key(0), path=path.astype(np.float32), tags=np.asarray([[1.0, 1.0, 0.8]], np.float32)),
+        ),
+        "ir_world": (
+            ir_world.simulate,
+            dict(
+                key=_key(0),
+                layout=layout,
+                poses=np.asarray(ir_world.polyline_path(ir_world.EXPERIMENT_WAYPOINTS, speed=0.2, dt=0.1, num_steps=T)),
+                dt=0.1,
+            ),
+        ),
+        "tag_carpet": (
+            tag_carpet.simulate,
+            dict(
+                key=_key(0),
+                carpet=carpet,
+                readers=sensor,
+                start_pose=np.asarray([0.2, 0.5, 0.0]),
+                controls=np.tile([[0.2, 0.0, 0.0, 0.5]], (T, 1)),
+                odometry_sd=np.full(3, 0.01),
+            ),
+        ),
+    }
+
+
+@pytest.mark.parametrize("name", ["landmark_world", "uhf_reader", "ir_world", "tag_carpet"])
+def test_the_simulators_refuse_bad_input_by_name_or_accept_lists(name):
+    """Every array argument with NaN, ±inf or 1e30 in it, or a dimension too many; a bad key; and
+    the arrays as lists (accepted, the same result)."""
+    simulate, kwargs = _simulator_calls()[name]
+    failures, count = [], 0
+
+    def case(cid, changed, tokens):
+        nonlocal count
+        count += 1
+        try:
+            check_outcome(lambda: simulate(**{**kwargs, **changed}), tokens)
+        except AssertionError as err:
+            failures.append(f"{cid}: {err}")
+
+    for arg, value in kwargs.items():
+        if isinstance(value, np.ndarray):
+            for kind, bad in BAD_VALUES.items():
+                v = value.astype(float).copy()
+                v.reshape(-1)[0] = bad
+                case(f"{arg}={kind}", {arg: v}, (arg,))
+            case(f"{arg}-wrong-shape", {arg: value[..., None]}, (arg,))
+    for cid, key in (("key-int", 0), ("key-float", np.zeros(2)), ("key-batch", jax.random.split(_key(0), 2))):
+        case(cid, {"key": key}, ("key",))
+    assert not failures, f"{len(failures)} of {count} cases:\n" + "\n".join(failures)
+    arrays = simulate(**kwargs)
+    lists = simulate(**{k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in kwargs.items()})
+    for a, b in zip(jax.tree_util.tree_leaves(arrays), jax.tree_util.tree_leaves(lists)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

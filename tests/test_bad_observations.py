@@ -107,8 +107,6 @@ def test_an_integer_mask_of_zeros_and_ones_is_the_boolean_mask_and_others_are_re
     # filter's own, which may round differently (measured: up to 2.4e-6 m): equal to float32 rounding
     _, traced = jax.jit(lambda o: run(u, o))(twos)
     np.testing.assert_allclose(np.asarray(traced.estimate), np.asarray(expected.estimate), rtol=1e-5, atol=1e-5)
-    _, traced_ones = jax.jit(lambda o: run(u, o))(obs._replace(mask=obs.mask.astype(jnp.int32)))
-    np.testing.assert_array_equal(np.asarray(traced.estimate), np.asarray(traced_ones.estimate))
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -248,6 +248,7 @@ def places(tmp_path_factory):
         "mrclam-text": str(
             _mrclam(base / "mrclam-text", **{"Robot1_Odometry.dat": "# t v w\n0.0 0.1 0.0\n0.1 fast 0.0\n"})
         ),
+        "mrclam-ok": str(_mrclam(base / "mrclam-ok")),
         "checkpoint": str(base / "checkpoint"),
     }
 
@@ -317,6 +318,10 @@ def test_bad_options_are_refused_in_one_line_before_computing(argv, pattern, pla
 # corrupted data and checkpoints: refused at load, naming the file and its line
 
 CORRUPTED = [
+    (
+        ["mrclam", "--robots", "1", "--duration", "100", "--data", "{mrclam-ok}"],
+        r"robot 1: --duration must be in \(0, 2\.\d+\] s from this t_start, got 100",
+    ),
     (
         ["uhf-real", "--experiment", "x", "--data", "{adarf-truncated}"],
         r"3\.csv\.gz: unreadable after line \d+ \(EOFError.*truncated",

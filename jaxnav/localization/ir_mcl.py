@@ -265,7 +265,9 @@ class IRMCLInfo(PFInfo):
             unique-ID detection.
         num_detections: int32, detections used to weight the particles.
         num_ignored: int32, valid detections not used (a repeated ID before
-            the start, or an ID no emitter of the layout carries).
+            the start, an ID no emitter of the layout carries, or a level that is not
+            finite or beyond :data:`jaxnav.models.ir.MAX_VOLTAGE`, which the host refuses,
+            so only inside a caller's ``jit``).
         emitter: ``[R]`` int32 index of the emitter each receiver's detection
             was attributed to (eq. 5.1; −1 when the receiver's detection was
             not used).
@@ -514,6 +516,12 @@ def kernel(
     # Alg. 3 lines 2–4: move every particle
     moved = get_motion_model(config.motion_model).sample(k_move, state.particles, control, params.motion)
 
+    # a level that is not finite or beyond the limit (refused on the host, so only inside a caller's
+    # jit) makes its detection unusable: dropped and counted in num_ignored
+    readable = jnp.isfinite(det.voltage) & (jnp.abs(det.voltage) <= ir.MAX_VOLTAGE)
+    num_unusable = jnp.sum(det.valid & ~readable, dtype=jnp.int32)
+    det = det._replace(valid=det.valid & readable, voltage=jnp.where(readable, det.voltage, 0.0))
+
     # Alg. 3 line 5: which receivers saw an emitter of the layout (a unique ID: its only carrier)
     mask = jnp.where(det.valid, det.mask, 0).astype(jnp.int32)
     match = mask[:, None] == layout.masks[None, :]  # [R, E]
@@ -570,7 +578,7 @@ def kernel(
         started=started,
         reinitialised=trigger,
         num_detections=num_used,
-        num_ignored=jnp.sum(det.valid, dtype=jnp.int32) - num_used,
+        num_ignored=jnp.sum(det.valid, dtype=jnp.int32) - num_used + num_unusable,
         emitter=emitter,
     )
     return IRMCLState(res.particles, res.log_weights, started), info

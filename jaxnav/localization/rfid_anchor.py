@@ -173,9 +173,13 @@ class RFIDAnchorState(NamedTuple):
 @dataclass(frozen=True)
 class RFIDAnchorInfo(PFInfo):
     """Per-step diagnostics: ``estimate [4 + G]`` (weighted mean; angles on the circle), ``ess``,
-    ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``."""
+    ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``, and
+    ``num_ignored``: valid reads dropped because a value was not finite or out of range
+    (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside a
+    caller's ``jit``)."""
 
     num_reads: jax.Array
+    num_ignored: jax.Array
 
 
 def default_params(
@@ -275,6 +279,14 @@ def kernel(
     pose = motion.increment_sample(k_move, p[:, :4], control, params.odometry_sd, config.odometry_frame)
     offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))
     moved = jnp.concatenate([pose, offsets], axis=-1)
+    usable = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
+    num_ignored = jnp.sum(jnp.asarray(reads.mask, bool) & ~usable, dtype=jnp.int32)
+    reads = AnchorReads(
+        jnp.where(usable, reads.rssi, 1.0),
+        jnp.where(usable, reads.phase, 0.0),
+        jnp.where(usable, reads.wavelength, 1.0),
+        usable,
+    )
     ll = U.read_log_likelihood(
         moved[:, None, :4],
         params.anchors[None, :, :],
@@ -299,6 +311,7 @@ def kernel(
         RFIDAnchorInfo,
         base.replace(log_likelihood=jnp.where(any_read, norm.log_norm, 0.0)),
         num_reads=jnp.sum(reads.mask, dtype=jnp.int32),
+        num_ignored=num_ignored,
     )
     return RFIDAnchorState(res.particles, res.log_weights), info
 

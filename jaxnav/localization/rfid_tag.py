@@ -185,9 +185,13 @@ class RFIDTagInfo(PFInfo):
         log_likelihood: log of the weighted mean likelihood of the step's reads (0 without reads).
         degenerate: bool, every particle had zero likelihood; the weights were reset.
         num_reads: int32, valid reads used.
+        num_ignored: int32, valid reads dropped because a value was not finite or out of range
+            (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside
+            a caller's ``jit``).
     """
 
     num_reads: jax.Array
+    num_ignored: jax.Array
 
 
 def default_params(
@@ -297,6 +301,15 @@ class Weighed(NamedTuple):
 
 def weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> Weighed:
     """[A] Alg. 6 lines 9–19: weight the particles by the step's reads, estimate, and decide whether to resample."""
+    usable = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
+    num_ignored = jnp.sum(jnp.asarray(reads.mask, bool) & ~usable, dtype=jnp.int32)
+    reads = reads._replace(
+        reader=jnp.where(usable[..., None] & jnp.isfinite(reads.reader), reads.reader, 0.0),
+        rssi=jnp.where(usable, reads.rssi, 1.0),
+        phase=jnp.where(usable, reads.phase, 0.0),
+        wavelength=jnp.where(usable, reads.wavelength, 1.0),
+        mask=usable,
+    )
     ll = log_likelihoods(config, params, state.particles, reads)
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
@@ -311,6 +324,7 @@ def weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, rea
         jnp.where(any_read, norm.log_norm, 0.0),
         norm.degenerate,
         jnp.sum(reads.mask, dtype=jnp.int32),
+        num_ignored,
     )
     return Weighed(norm.log_weights, probs, info)
 

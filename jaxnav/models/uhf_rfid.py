@@ -185,6 +185,7 @@ __all__ = [
     "read_mask",
     "validate_phase",
     "MAX_RSSI_W",
+    "usable_reads",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -775,6 +776,15 @@ def read_model_float32(channel: ChannelParams, gamma: GammaParams) -> tuple[Chan
         ChannelParams(*(f32(c) for c in channel[:4]), AntennaParams(*(f32(c) for c in channel.antenna))),
         GammaParams(f32(gamma.k), f32(gamma.theta)),
     )
+
+
+def usable_reads(rssi: Any, phase: Any, wavelength: Any, mask: Any) -> jax.Array:
+    """The read slots a filter may use: ``mask`` and an RSSI in ``(0, MAX_RSSI_W]`` W, a phase in
+    ``[0, 2π]`` rad and a finite positive wavelength. The host checks refuse other values in valid
+    slots; inside a caller's ``jit`` the filters drop (and count) such slots instead."""
+    ok = jnp.isfinite(rssi) & (rssi > 0) & (rssi <= MAX_RSSI_W)
+    ok &= (phase >= 0) & (phase <= 2.0 * math.pi) & jnp.isfinite(wavelength) & (wavelength > 0)
+    return jnp.asarray(mask, bool) & ok
 
 
 def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any, prefix: str = "params") -> None:

@@ -48,8 +48,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     check_finite,
+    check_magnitude,
     check_nonnegative,
     check_positive,
     check_positive_int,
@@ -507,10 +509,15 @@ def simulate(
     check_shape("poses", p, (None, 3))
     if p.shape[0] < 2:
         raise ValueError(f"poses must hold at least two poses (T + 1 ≥ 2), got {p.shape[0]}")
-    check_finite("poses", p)
+    check_key(key)
+    check_magnitude("poses", p)
     check_positive("dt", dt)
     if receiver_params is None:
         receiver_params = ir_receiver.default_params()
+    if not isinstance(receiver_params, ir_receiver.ReceiverParams):
+        raise ValueError(
+            f"receiver_params must be a ReceiverParams (ir_receiver.default_params), got {type(receiver_params).__name__}"
+        )
     ir_receiver.validate_params(receiver_params)
     if is_concrete(layout):  # inside a trace (a batch of runs over layouts) only the shapes can be checked
         ir.validate_layout(layout)

@@ -86,7 +86,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import check_finite, check_nonnegative, check_shape, is_concrete
+from jaxnav.core.filter import check_key
+from jaxnav.core.validation import (
+    MAX_MAGNITUDE,
+    check_finite,
+    check_magnitude,
+    check_nonnegative,
+    check_shape,
+    is_concrete,
+)
 from jaxnav.models import hf_rfid
 from jaxnav.models.motion import OmniNoise, omni_mean
 from jaxnav.sim.trajectories import rectangle_controls
@@ -229,6 +237,7 @@ def make_carpet(
         origin: world position (m) of nominal tag ``(0, 0)``.
         jitter: J (m); each tag is displaced by ``U[−J, J]`` per axis. Must be ``< p/2``.
     """
+    check_key(key)
     if (density is None) == (pitch is None):
         raise ValueError("give exactly one of density (tags/m²: 100, 16 or 4 in [W]) and pitch (m)")
     p = density_to_pitch(density) if density is not None else float(pitch)
@@ -238,8 +247,8 @@ def make_carpet(
         w, h = (float(a) for a in area)
     except (TypeError, ValueError):
         raise ValueError(f"area must be (width, height) in m, got {area!r}") from None
-    if not (math.isfinite(w) and math.isfinite(h) and w >= 0 and h >= 0):
-        raise ValueError(f"area must be two finite numbers ≥ 0 m, got {area!r}")
+    if not (math.isfinite(w) and math.isfinite(h) and 0 <= w <= MAX_MAGNITUDE and 0 <= h <= MAX_MAGNITUDE):
+        raise ValueError(f"area must be two finite numbers in [0, {MAX_MAGNITUDE:g}] m, got {area!r}")
     j = float(jitter)
     if not (math.isfinite(j) and 0 <= j < p / 2):
         raise ValueError(f"jitter must be in [0, pitch/2) = [0, {p / 2:g}) m for pitch {p:g} m, got {jitter!r}")
@@ -607,6 +616,7 @@ def simulate(
             f"motion_model must be 'omni' or 'omni_body' (the frame of the odometry), got {motion_model!r}"
         )
     sd = odometry_sd.sd if isinstance(odometry_sd, OmniNoise) else odometry_sd
+    check_key(key)
     sd = jnp.asarray(sd)
     check_shape("odometry_sd", sd, (3,))
     check_nonnegative("odometry_sd", sd)
@@ -616,12 +626,12 @@ def simulate(
     check_shape("controls", controls, (None, 4))
     if controls.shape[0] < 1:
         raise ValueError("controls must hold at least one step")
-    check_finite("controls", controls)
+    check_magnitude("controls", controls)
     if is_concrete(controls) and not np.all(np.asarray(controls[:, 3]) > 0):
         raise ValueError("controls[:, 3] (Δt) must be > 0 s")
     start_pose = jnp.asarray(start_pose)
     check_shape("start_pose", start_pose, (3,))
-    check_finite("start_pose", start_pose)
+    check_magnitude("start_pose", start_pose)
     side = _static_side(readers, footprint_side, "simulate")
     k = _resolve_capacity(carpet.layout, side, readers.offsets, max_detections, "simulate")
     n = candidates_per_axis(carpet.layout, side)

@@ -121,8 +121,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     check_finite,
+    check_magnitude,
     check_nonnegative,
     check_positive,
     check_positive_int,
@@ -587,7 +589,7 @@ def _check_poses(path: Any) -> None:
     check_shape("path", path, (None, 4))
     if np.shape(path)[0] < 1:
         raise ValueError("path must hold at least one pose")
-    check_finite("path", path)
+    check_magnitude("path", path)
     if is_concrete(path) and np.any(np.asarray(path)[:, 2] < 0):
         raise ValueError("path z (the reader's height above the ground z = 0) must be ≥ 0")
 
@@ -596,7 +598,7 @@ def _check_tags(tags: Any, name: str = "tags") -> None:
     check_shape(name, tags, (None, 3))
     if np.shape(tags)[0] < 1:
         raise ValueError(f"{name} must hold at least one tag")
-    check_finite(name, tags)
+    check_magnitude(name, tags)
     if is_concrete(tags) and np.any(np.asarray(tags)[:, 2] < 0):
         raise ValueError(f"{name} z (height above the ground z = 0) must be ≥ 0: a tag below the ground")
 
@@ -760,6 +762,7 @@ def simulate_reads(
         the true pose and λ. Jitted (same shapes, same ``order``/``J``: no retrace).
     """
     mp = get_multipath(multipath)
+    check_key(key)
     _check_poses(path)
     _check_tags(tags)
     uhf_rfid.validate_channel(channel)

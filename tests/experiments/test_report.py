@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from jaxnav.experiments import report
@@ -99,3 +100,17 @@ def test_every_study_uses_the_one_formatter():
     ):
         src = inspect.getsource(fn)
         assert "report.text(" in src or "report.markdown(" in src, fn.__qualname__
+
+
+def test_uhf_real_results_count_a_diverged_seed_instead_of_averaging_it():
+    from jaxnav.experiments.uhf import real as uhf_real
+    from jaxnav.models import uhf_rfid as U
+
+    truth = np.asarray([0.5, 1.0])
+    estimates = np.tile(truth + [0.1, 0.0], (3, 50, 1))
+    estimates[2, -1] = np.nan  # the last seed diverged
+    errors = np.linalg.norm(estimates - truth, axis=-1)
+    result = uhf_real.TagResult("exp", 0, "rssi", truth, estimates, errors, errors[:, -1], U.GammaParams(2.0, 1.0))
+    text = uhf_real.format_results([result])
+    assert "exp tag 0 rssi: 1 of 3 runs diverged" in text
+    assert "0.100" in text and "nan" not in text.lower()

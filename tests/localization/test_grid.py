@@ -391,7 +391,7 @@ def test_degenerate_correction_keeps_the_prediction_and_is_flagged_never_nan(mon
         return jnp.full(config.shape, -jnp.inf), jnp.zeros((), jnp.int32)
 
     monkeypatch.setattr(grid, "cell_log_likelihood", nowhere)
-    new, info = grid.kernel(None, state, CONFIG, params, control, obs)
+    new, info = jax.jit(grid.kernel, static_argnums=2)(None, state, CONFIG, params, control, obs)
     assert bool(info.degenerate) and info.log_likelihood == -np.inf
     predicted = np.asarray(grid.predict(state, CONFIG, params, control))
     predicted = predicted - np.log(np.sum(np.exp(predicted.astype(np.float64))))

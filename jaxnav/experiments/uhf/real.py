@@ -47,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core.validation import check_choice, check_positive, check_positive_int
-from jaxnav.experiments import report
+from jaxnav.experiments import report, stats
 from jaxnav.io import adarf
 from jaxnav.localization import rfid_tag
 from jaxnav.models import uhf_calibration
@@ -227,7 +227,10 @@ def localize(
 
 
 def format_results(results: Sequence[TagResult]) -> str:
-    """A table: final error (m, mean and range over seeds) and its x / y parts per tag and weighting."""
+    """A table: final error (m, mean and range over seeds) and its x / y parts per tag and weighting.
+
+    A seed whose final estimate is not finite diverged: it is left out of the row's numbers and
+    counted in a line under the table ("1 of 5 runs diverged")."""
     columns = [
         report.Column("experiment", 16, "<"),
         report.Column("tag", 4),
@@ -239,23 +242,30 @@ def format_results(results: Sequence[TagResult]) -> str:
         report.Column("prior m", 9),
         report.Column("anchor k", 10),
     ]
-    rows = []
+    rows, notes = [], []
     for r in results:
         d = r.estimates[:, -1] - r.truth
+        diverged = stats.diverged_runs(r.final_error, d)
+        ok = ~diverged
+        err, d = np.asarray(r.final_error)[ok], d[ok]
         rows.append(
             [
                 r.experiment,
                 str(r.tag),
                 r.weighting,
-                report.number(r.final_error.mean(), 3),
-                f"({report.number(r.final_error.min(), 3)}-{report.number(r.final_error.max(), 3)})",
-                report.number(d[:, 0].mean(), 3),
-                report.number(d[:, 1].mean(), 3),
+                report.number(err.mean() if err.size else math.nan, 3),
+                f"({report.number(err.min() if err.size else math.nan, 3)}-"
+                f"{report.number(err.max() if err.size else math.nan, 3)})",
+                report.number(d[:, 0].mean() if err.size else math.nan, 3),
+                report.number(d[:, 1].mean() if err.size else math.nan, 3),
                 report.number(prior_rmse(r.truth), 3),
                 report.number(r.gamma.k, 1),
             ]
         )
-    return report.text(columns, rows, rule=False)
+        notes.append(
+            report.diverged_line(f"{r.experiment} tag {r.tag} {r.weighting}", int(diverged.sum()), diverged.size)
+        )
+    return "\n".join([report.text(columns, rows, rule=False), *(n for n in notes if n)])
 
 
 def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray | None = None) -> None:

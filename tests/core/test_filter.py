@@ -193,3 +193,20 @@ def test_every_filter_has_one_argument_order_and_a_public_kernel(module):
         assert names[:4] == ["key", "state", "config", "params"], (fn, names)
     assert "donate_state" in inspect.signature(module.run).parameters
     assert module.step.__doc__ and module.run.__doc__ and module.kernel.__doc__
+
+
+@pytest.mark.parametrize("size", [1000, (1 << 20) + 1000])  # checked with NumPy, and on the device
+def test_state_values_are_checked_with_the_field_and_the_first_bad_index(size):
+    class State(NamedTuple):
+        particles: jax.Array
+        log_weights: jax.Array
+
+    n = size // 2
+    good = State(jnp.zeros((n, 2)), jnp.full((n,), -jnp.inf).at[0].set(0.0))
+    filter_api.check_state_arrays(good)  # -inf is a weight of zero in a log-domain field
+    for value, what in ((jnp.nan, "NaN or infinite"), (jnp.inf, "NaN or infinite"), (2e6, "exceed 1e\\+06")):
+        bad = good._replace(particles=good.particles.at[n - 1, 1].set(value))
+        with pytest.raises(ValueError, match=rf"state.particles .*{what}.* index \({n - 1}, 1\)"):
+            filter_api.check_state_arrays(bad)
+    with pytest.raises(ValueError, match=r"state.log_weights holds 1 NaN or infinite value\(s\), the first \(inf\)"):
+        filter_api.check_state_arrays(good._replace(log_weights=good.log_weights.at[3].set(jnp.inf)))

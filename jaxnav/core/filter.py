@@ -71,7 +71,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, is_concrete
+from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, first_index, is_concrete
 
 __all__ = ["FilterSpec", "Filter", "build", "scan", "check_key", "check_params_arrays", "check_state_arrays"]
 
@@ -264,7 +264,7 @@ def _fingerprint(leaves: list, treedef: Any) -> tuple | None:
     return treedef, tuple(meta), digest.digest()
 
 
-def _state_leaves(tree: Any, root: str = "state") -> list[tuple[str, Any]]:
+def _named_leaves(tree: Any, root: str = "state") -> list[tuple[str, Any]]:
     """``("state.field.sub", leaf)`` for every leaf of ``tree``."""
     named = []
     for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
@@ -278,15 +278,12 @@ def check_params_arrays(params: Any) -> None:
     and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude; log-domain fields
     (named ``log_…``) may also be ``-inf`` (zero probability).
     Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
-    for name, leaf in _state_leaves(params, "params"):
+    for name, leaf in _named_leaves(params, "params"):
         if isinstance(leaf, jax.core.Tracer) or np.dtype(_dtype(leaf)).kind != "f":
             continue
-        v = np.asarray(leaf)
-        if name.rsplit(".", 1)[-1].startswith("log_"):
-            if np.isnan(v).any() or (v == np.inf).any():
-                raise ValueError(f"{name} holds NaN or +inf: a log-probability is finite or -inf")
-            v = np.where(v == -np.inf, 0.0, v)
-        check_magnitude(name, v)
+        v, log_field = np.asarray(leaf), _is_log_domain(name)
+        if not _host_leaf_ok(v, log_field):
+            _raise_bad_values(name, v, log_field)
 
 
 def check_state_arrays(state: Any) -> None:
@@ -294,7 +291,7 @@ def check_state_arrays(state: Any) -> None:
     precision, float32 or float64, with no NaN, no ``+inf``, and ``-inf`` only in fields named
     ``log_…``, and no magnitude above :data:`~jaxnav.core.validation.MAX_MAGNITUDE`.
     Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
-    floats = [(name, leaf) for name, leaf in _state_leaves(state) if np.dtype(_dtype(leaf)).kind == "f"]
+    floats = [(name, leaf) for name, leaf in _named_leaves(state) if np.dtype(_dtype(leaf)).kind == "f"]
     for name, leaf in floats:
         dtype = np.dtype(_dtype(leaf))
         if dtype.itemsize < 4:
@@ -308,7 +305,7 @@ def check_state_arrays(state: Any) -> None:
     concrete = [(name, leaf) for name, leaf in floats if not isinstance(leaf, jax.core.Tracer)]
     if not concrete:
         return
-    log_domain = tuple(name.rsplit(".", 1)[-1].startswith("log_") for name, _ in concrete)
+    log_domain = tuple(_is_log_domain(name) for name, _ in concrete)
     leaves = tuple(leaf for _, leaf in concrete)
     if sum(np.size(leaf) for leaf in leaves) <= _HOST_CHECK_MAX_SIZE:
         ok = [_host_leaf_ok(np.asarray(leaf), f) for leaf, f in zip(leaves, log_domain)]
@@ -320,6 +317,11 @@ def check_state_arrays(state: Any) -> None:
     for (name, leaf), fine, log_field in zip(concrete, ok, log_domain):
         if not fine:
             _raise_bad_values(name, np.asarray(leaf), log_field)
+
+
+def _is_log_domain(name: str) -> bool:
+    """A field named ``log_…`` holds log-probabilities: ``-inf`` (zero probability) is a value there."""
+    return name.rsplit(".", 1)[-1].startswith("log_")
 
 
 _HOST_CHECK_MAX_SIZE = 1 << 20
@@ -347,10 +349,10 @@ def _leaves_ok(leaves: tuple, log_domain: tuple[bool, ...]) -> jax.Array:
 
 
 def _raise_bad_values(name: str, v: np.ndarray, log_domain: bool) -> None:
-    """The message for a state leaf :func:`_leaves_ok` found bad (read on the host)."""
+    """The message for a leaf :func:`_host_leaf_ok` or :func:`_leaves_ok` found bad (read on the host)."""
     bad = np.isnan(v) | (v == np.inf) | ((v == -np.inf) & (not log_domain))
     if bad.any():
-        where = tuple(int(i) for i in np.argwhere(bad)[0]) if v.ndim else ()
+        where = first_index(bad)
         raise ValueError(
             f"{name} holds {int(bad.sum())} NaN or infinite value(s), the first ({float(v[where])}) at "
             f"index {where}: no filter step can recover from it"

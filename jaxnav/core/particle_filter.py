@@ -66,7 +66,9 @@ def extend_info(info_type: type[InfoT], base: PFInfo, **fields: Any) -> InfoT:
     return info_type(**shared, **fields)
 
 
-def keep_finite(previous: jax.Array, moved: jax.Array, log_likelihood: jax.Array) -> tuple[jax.Array, jax.Array]:
+def keep_finite(
+    previous: jax.Array, moved: jax.Array, log_likelihood: jax.Array, ok: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array]:
     """The guard every particle filter's step applies after its move and its scores.
 
     A particle whose move is not finite (an overflow under a caller's ``jit``, where the host
@@ -75,10 +77,13 @@ def keep_finite(previous: jax.Array, moved: jax.Array, log_likelihood: jax.Array
     ``+inf`` score is zero weight too (:func:`jaxnav.core.weights.normalize`). When no particle is
     left the step is degenerate: the previous particles are kept with uniform weights, and the
     step is flagged. On finite input both selects keep every value: results are unchanged.
+    ``ok [N]`` replaces the test "the move is finite" where a particle carries more than its
+    move (FastSLAM: its map rows too).
 
     Returns ``(particles [N, D], log_likelihood [N])``.
     """
-    ok = jnp.all(jnp.isfinite(moved), axis=-1)
+    if ok is None:
+        ok = jnp.all(jnp.isfinite(moved), axis=-1)
     return jnp.where(ok[:, None], moved, previous), jnp.where(ok, log_likelihood, -jnp.inf)
 
 

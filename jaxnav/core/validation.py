@@ -31,6 +31,7 @@ __all__ = [
     "check_bounds",
     "as_array",
     "check_type",
+    "first_index",
 ]
 
 MAX_MAGNITUDE = 1e6
@@ -110,8 +111,9 @@ def check_nonnegative(name: str, x: Any) -> None:
         raise ValueError(f"{name} must be finite and non-negative, got {v}")
 
 
-def _first_index(bad: np.ndarray) -> tuple[int, ...]:
-    return tuple(int(i) for i in np.argwhere(bad)[0])
+def first_index(bad: np.ndarray) -> tuple[int, ...]:
+    """The index of the first True entry of ``bad`` (``()`` for a scalar), for error messages."""
+    return tuple(int(i) for i in np.argwhere(bad)[0]) if np.ndim(bad) else ()
 
 
 def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
@@ -124,7 +126,7 @@ def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
         return
     bad = ~np.isfinite(v) | (np.abs(v) > limit)
     if bad.any():
-        where = _first_index(bad) if v.ndim else ()
+        where = first_index(bad)
         raise ValueError(
             f"{name} holds {int(bad.sum())} value(s) that are not finite or exceed {limit:g} in magnitude, "
             f"the first ({float(v[where]):g}) at index {where}; values are in SI units (m, s, rad)"
@@ -215,13 +217,10 @@ def float_array(name: str, x: Any, dtype: Any = None) -> jax.Array:
     """
     a = as_array(name, x)
     if dtype is None:
-        kind = np.dtype(a.dtype).kind if not isinstance(a, jax.Array) else a.dtype.kind
-        if kind != "f":
+        if not jnp.issubdtype(a.dtype, jnp.floating):
             dtype = jax.dtypes.canonicalize_dtype(float)
-        elif np.dtype(a.dtype).itemsize < 4:
-            dtype = np.float32
         else:
-            dtype = jax.dtypes.canonicalize_dtype(a.dtype)
+            dtype = jax.dtypes.canonicalize_dtype(a.dtype if jnp.finfo(a.dtype).bits >= 32 else np.float32)
     return jnp.asarray(a, dtype)
 
 
@@ -250,7 +249,7 @@ def check_slots(
         m = np.asarray(mask)
         odd = (m != 0) & (m != 1)
         if odd.any():
-            where = tuple(int(i) for i in np.argwhere(odd)[0])
+            where = first_index(odd)
             raise ValueError(
                 f"{name}.mask must be boolean or integers 0 and 1, got {int(m[where])} at index {where} "
                 f"({int(odd.sum())} such value(s))"
@@ -265,14 +264,14 @@ def check_slots(
     rows = v.reshape(v.shape[: np.ndim(mask)] + (-1,))
     bad = valid & ~np.all(np.isfinite(rows), axis=-1)
     if bad.any():
-        where = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = first_index(bad)
         raise ValueError(
             f"{name}.z holds NaN or infinite values in {int(bad.sum())} valid slot(s), the first at index "
             f"{where}: mask such slots out ({name}.mask False) instead of passing them"
         )
     huge = valid & np.any(np.abs(rows) > MAX_MAGNITUDE, axis=-1)
     if huge.any():
-        where = tuple(int(i) for i in np.argwhere(huge)[0])
+        where = first_index(huge)
         raise ValueError(
             f"{name}.z holds values larger than {MAX_MAGNITUDE:g} in magnitude in {int(huge.sum())} valid "
             f"slot(s), the first at index {where}: values are in SI units (m, rad)"

@@ -217,8 +217,6 @@ def _validate_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> 
 
 
 def _validate_state(config: AugmentedMCLConfig, params: Any, state: AugmentedMCLState) -> None:
-    if not isinstance(state, AugmentedMCLState):
-        raise ValueError(f"state must be an AugmentedMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 3))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
     check_shape("state.log_w_slow", state.log_w_slow, ())

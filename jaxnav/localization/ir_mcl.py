@@ -378,8 +378,6 @@ def _validate_params(config: IRMCLConfig, params: IRMCLParams) -> None:
 
 
 def _validate_state(config: IRMCLConfig, params: Any, state: IRMCLState) -> None:
-    if not isinstance(state, IRMCLState):
-        raise ValueError(f"state must be an IRMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 3))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
     check_shape("state.started", state.started, ())

@@ -282,8 +282,6 @@ def _validate_params(config: KLDMCLConfig, params: MCLParams) -> None:
 
 
 def _validate_state(config: KLDMCLConfig, params: Any, state: KLDMCLState) -> None:
-    if not isinstance(state, KLDMCLState):
-        raise ValueError(f"state must be a KLDMCLState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.max_particles, 3))
     check_shape("state.log_weights", state.log_weights, (config.max_particles,))
     check_shape("state.num_active", state.num_active, ())

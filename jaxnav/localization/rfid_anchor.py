@@ -279,14 +279,9 @@ def kernel(
     pose = motion.increment_sample(k_move, p[:, :4], control, params.odometry_sd, config.odometry_frame)
     offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))
     moved = jnp.concatenate([pose, offsets], axis=-1)
-    usable = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
-    num_ignored = jnp.sum(jnp.asarray(reads.mask, bool) & ~usable, dtype=jnp.int32)
-    reads = AnchorReads(
-        jnp.where(usable, reads.rssi, 1.0),
-        jnp.where(usable, reads.phase, 0.0),
-        jnp.where(usable, reads.wavelength, 1.0),
-        usable,
-    )
+    u = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
+    num_ignored = u.num_ignored
+    reads = AnchorReads(u.rssi, u.phase, u.wavelength, u.mask)
     ll = U.read_log_likelihood(
         moved[:, None, :4],
         params.anchors[None, :, :],
@@ -322,8 +317,6 @@ def _as_reads(r: AnchorReads) -> AnchorReads:
 
 def _validate_state(config: RFIDAnchorConfig, params: RFIDAnchorParams, state: RFIDAnchorState) -> None:
     g = np.shape(params.anchors)[0]
-    if not isinstance(state, RFIDAnchorState):
-        raise ValueError(f"state must be an RFIDAnchorState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 4 + g))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
 

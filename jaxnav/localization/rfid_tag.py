@@ -301,15 +301,10 @@ class Weighed(NamedTuple):
 
 def weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> Weighed:
     """[A] Alg. 6 lines 9–19: weight the particles by the step's reads, estimate, and decide whether to resample."""
-    usable = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
-    num_ignored = jnp.sum(jnp.asarray(reads.mask, bool) & ~usable, dtype=jnp.int32)
-    reads = reads._replace(
-        reader=jnp.where(usable[..., None] & jnp.isfinite(reads.reader), reads.reader, 0.0),
-        rssi=jnp.where(usable, reads.rssi, 1.0),
-        phase=jnp.where(usable, reads.phase, 0.0),
-        wavelength=jnp.where(usable, reads.wavelength, 1.0),
-        mask=usable,
-    )
+    u = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
+    num_ignored = u.num_ignored
+    reader = jnp.where(u.mask[..., None] & jnp.isfinite(reads.reader), reads.reader, 0.0)
+    reads = U.UHFReads(reader, u.rssi, u.phase, u.wavelength, u.mask)
     ll = log_likelihoods(config, params, state.particles, reads)
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
@@ -381,8 +376,6 @@ def _as_reads(reads: U.UHFReads) -> U.UHFReads:
 
 
 def _validate_state(config: RFIDTagConfig, params: Any, state: RFIDTagState) -> None:
-    if not isinstance(state, RFIDTagState):
-        raise ValueError(f"state must be an RFIDTagState, got {type(state).__name__}")
     check_shape("state.particles", state.particles, (config.num_particles, 4))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
 

@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import as_array, check_magnitude, check_nonnegative, check_shape, is_concrete
+from jaxnav.core.validation import as_array, check_magnitude, check_nonnegative, check_shape, first_index, is_concrete
 from jaxnav.core.weights import wrap_angle
 
 __all__ = [
@@ -470,7 +470,7 @@ def validate_controls(name: str, controls: object, model: str, time_axis: bool) 
     if spec.dt_index is not None and is_concrete(controls):
         dt = np.asarray(controls)[..., spec.dt_index]
         if np.any(dt < 0):
-            where = tuple(int(i) for i in np.argwhere(dt < 0)[0]) + (spec.dt_index,)
+            where = first_index(dt < 0) + (spec.dt_index,)
             raise ValueError(
                 f"{name} holds a negative time step Δt (column {spec.dt_index} of a {model!r} control), the "
                 f"first {float(np.asarray(controls)[where]):g} s at index {where}"

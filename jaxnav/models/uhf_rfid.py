@@ -186,6 +186,7 @@ __all__ = [
     "validate_phase",
     "MAX_RSSI_W",
     "usable_reads",
+    "UsableReads",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -778,13 +779,34 @@ def read_model_float32(channel: ChannelParams, gamma: GammaParams) -> tuple[Chan
     )
 
 
-def usable_reads(rssi: Any, phase: Any, wavelength: Any, mask: Any) -> jax.Array:
+class UsableReads(NamedTuple):
+    """Read slots with the unusable ones dropped (:func:`usable_reads`): ``rssi``, ``phase`` and
+    ``wavelength`` (harmless values in dropped slots), the new ``mask`` and ``num_ignored``, the
+    valid slots dropped."""
+
+    rssi: jax.Array
+    phase: jax.Array
+    wavelength: jax.Array
+    mask: jax.Array
+    num_ignored: jax.Array
+
+
+def usable_reads(rssi: Any, phase: Any, wavelength: Any, mask: Any) -> UsableReads:
     """The read slots a filter may use: ``mask`` and an RSSI in ``(0, MAX_RSSI_W]`` W, a phase in
     ``[0, 2π]`` rad and a finite positive wavelength. The host checks refuse other values in valid
-    slots; inside a caller's ``jit`` the filters drop (and count) such slots instead."""
+    slots; inside a caller's ``jit`` the filters drop such slots, count them, and put harmless
+    values (1 W, 0 rad, 1 m) in their place, so that no NaN reaches a likelihood."""
+    mask = jnp.asarray(mask, bool)
     ok = jnp.isfinite(rssi) & (rssi > 0) & (rssi <= MAX_RSSI_W)
     ok &= (phase >= 0) & (phase <= 2.0 * math.pi) & jnp.isfinite(wavelength) & (wavelength > 0)
-    return jnp.asarray(mask, bool) & ok
+    usable = mask & ok
+    return UsableReads(
+        jnp.where(usable, rssi, 1.0),
+        jnp.where(usable, phase, 0.0),
+        jnp.where(usable, wavelength, 1.0),
+        usable,
+        jnp.sum(mask & ~usable, dtype=jnp.int32),
+    )
 
 
 def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any, prefix: str = "params") -> None:

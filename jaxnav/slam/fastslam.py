@@ -73,7 +73,7 @@ import numpy as np
 
 from jaxnav.core import fastmath, kalman, resampling, weights
 from jaxnav.core import filter as filter_api
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_covariances,
@@ -700,13 +700,11 @@ def kernel(
         om, r, poses, state.means, state.covs, state.seen, obs, valid, ids, config.parallel_slots
     )
     loglik = update_ll if config.version == 1 else proposal_ll
-    # the guard of every particle filter (core.particle_filter.keep_finite), with the particle's map
-    # rows: a particle whose pose or updated landmarks are not finite keeps its pose, gets zero
+    # the guard of every particle filter, with the particle's map rows: a particle whose pose or updated landmarks are not finite keeps its pose, gets zero
     # weight and is resampled away (this step resamples whatever its ESS, so its rows are never
     # an ancestor's); with none left the step writes nothing and is degenerate
     ok = _finite_particles(poses, updates, config.num_landmarks)
-    poses = jnp.where(ok[:, None], poses, state.poses)
-    loglik = jnp.where(ok, loglik, -jnp.inf)
+    poses, loglik = keep_finite(state.poses, poses, loglik, ok=ok)
     any_ok, all_ok = jnp.any(ok), jnp.all(ok)
     updates = updates._replace(write=jnp.where(any_ok, updates.write, config.num_landmarks))
     seen = jnp.where(any_ok, seen, state.seen)

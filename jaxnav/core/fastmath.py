@@ -33,6 +33,7 @@ __all__ = [
     "atan2",
     "int_cumsum",
     "INT_SCAN_BLOCK",
+    "INT_SCAN_DIRECT",
     "matmul",
     "small_sum",
     "blocked_int_cumsum",
@@ -130,6 +131,13 @@ INT_SCAN_BLOCK = 8
 """Block length of :func:`int_cumsum` on XLA:CPU (8 and 16 ran alike at 10⁶ elements; 8 compiles smaller)."""
 
 
+INT_SCAN_DIRECT = 256
+"""Up to this length :func:`int_cumsum` and its blocked levels use ``jnp.cumsum``: one kernel, which
+XLA:CPU fuses into its consumer. In one ``lax.scan`` on the 2-core AMD EPYC (jax 0.10.2), per call:
+32 elements 0.07 µs against the blocked form's 0.85 µs, 125: 1.1 against 2.2, 256: 2.0 against 3.1,
+1,000: 5.5 against 4.1 (``jnp.cumsum``'s passes grow as N log N, the blocked form's as N)."""
+
+
 def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
     """Inclusive cumulative sum of a 1-D 32-bit integer array, wrapping like the integer type.
 
@@ -149,7 +157,7 @@ def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
     """
     if x.ndim != 1 or not jnp.issubdtype(x.dtype, jnp.integer) or jnp.dtype(x.dtype).itemsize != 4:
         raise TypeError(f"int_cumsum takes a 1-D int32 or uint32 array, got {x.dtype}{list(x.shape)}")
-    if x.shape[0] <= INT_SCAN_BLOCK:
+    if x.shape[0] <= INT_SCAN_DIRECT:
         return jnp.cumsum(x, dtype=x.dtype)
     cpu = _blocked_int_cumsum_added if single_reader else blocked_int_cumsum
     return jax.lax.platform_dependent(x, cpu=cpu, default=lambda v: jnp.cumsum(v, dtype=v.dtype))
@@ -164,7 +172,7 @@ def _rows_and_offsets(x: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def _blocked_int_cumsum_added(x: jax.Array) -> jax.Array:
     n = x.shape[0]
-    if n <= INT_SCAN_BLOCK:
+    if n <= INT_SCAN_DIRECT:
         return jnp.cumsum(x, dtype=x.dtype)
     rows, offsets = _rows_and_offsets(x)
     upper = jnp.triu(jnp.ones((INT_SCAN_BLOCK, INT_SCAN_BLOCK), x.dtype))
@@ -174,7 +182,7 @@ def _blocked_int_cumsum_added(x: jax.Array) -> jax.Array:
 def blocked_int_cumsum(x: jax.Array) -> jax.Array:
     """The XLA:CPU path of :func:`int_cumsum`: rows of :data:`INT_SCAN_BLOCK` summed by one integer product each."""
     n, block = x.shape[0], INT_SCAN_BLOCK
-    if n <= block:
+    if n <= INT_SCAN_DIRECT:
         return jnp.cumsum(x, dtype=x.dtype)
     rows, offsets = _rows_and_offsets(x)
     # [offset, x_0, …, x_{B−1}] · [[1 … 1], triu(1)]: each row's running sums plus its offset, as one

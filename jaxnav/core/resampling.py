@@ -743,7 +743,7 @@ def conditional_resample(
 
     def _resample():
         idx = scheme_p(k_res, lw, p, n) if scheme_p is not None else resampler(k_res, lw, n)
-        new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0), particles)
+        new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0, mode="clip"), particles)
         if refresh == "kernel":
             new = kernel_refresh(k_ref, new, None, angle_dims)
         elif refresh:

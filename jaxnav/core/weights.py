@@ -152,8 +152,17 @@ def weighted_mean(particles: jax.Array, log_weights: jax.Array) -> jax.Array:
 
 
 def wrap_angle(angle: jax.Array) -> jax.Array:
-    """Wrap angles to ``[-π, π)`` (rad)."""
-    return (angle + jnp.pi) % (2.0 * jnp.pi) - jnp.pi
+    """Wrap angles to ``[-π, π)`` (rad): ``a − 2π·⌊(a + π)/2π⌋``, moved by ``2π`` where rounding put
+    it just outside the interval.
+
+    An angle already in ``[-π, π)`` is returned unchanged (``k = 0``, barring the last float below π).
+    The floor form replaces ``(a + π) % 2π − π``: ``%`` lowers to a scalar ``fmod`` call on XLA:CPU,
+    ten times slower (30,000 float32 angles: 153 µs against 15 µs, 2-core AMD EPYC), and it moved
+    in-range angles by a rounding of ``+π − π``.
+    """
+    wrapped = _wrap_angle_floor(angle)
+    wrapped = jnp.where(wrapped >= jnp.pi, wrapped - _TWO_PI, wrapped)
+    return jnp.where(wrapped < -jnp.pi, wrapped + _TWO_PI, wrapped)
 
 
 def _wrap_angle_floor(angle: jax.Array) -> jax.Array:

@@ -307,7 +307,7 @@ def kernel(
 
     n = config.num_particles
     idx = resampling.get_resampler(config.resampling)(k_resample, w.norm.log_weights, n)
-    resampled = jnp.take(particles, idx, axis=0)
+    resampled = jnp.take(particles, idx, axis=0, mode="clip")
     inject = jax.random.uniform(k_mask, (n,), dtype) < p_inject
     bounds = params.bounds.astype(dtype)
     lo = jnp.stack([bounds[0], bounds[2], jnp.asarray(-jnp.pi, dtype)])

@@ -45,7 +45,7 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
+from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite, materialize
 from jaxnav.core.validation import (
     check_bounds,
     check_choice,
@@ -241,7 +241,7 @@ def move_and_weight(
     and KLD-sampling variants; traceable, not jitted on its own.
     """
     model = get_motion_model(motion_model)
-    moved = model.sample(key, particles, control, params.motion)
+    moved = materialize(model.sample(key, particles, control, params.motion))
     positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
     moved, loglik = keep_finite(particles, moved, lm.log_likelihood(moved, positions, obs.z, valid, params.sensor))
     # log_weights is normalised, so the normaliser of the product is the

@@ -101,7 +101,9 @@ def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, ja
     mask = obs.mask.astype(bool)
     usable = (obs.ids >= 0) & (obs.ids < m) & usable_measurements(obs.z)
     valid = mask & usable
-    positions = jnp.take(landmark_map, jnp.clip(obs.ids, 0, m - 1), axis=0)
+    # mode="clip" on indices already clipped: the default "fill" adds a bounds select that XLA:CPU
+    # fuses into every [N, K] consumer (W2, N = 10⁴: the likelihood 1.6 ms against 0.5 ms).
+    positions = jnp.take(landmark_map, jnp.clip(obs.ids, 0, m - 1), axis=0, mode="clip")
     return positions, valid, jnp.sum(mask & ~usable).astype(jnp.int32)
 
 
@@ -136,9 +138,14 @@ def log_likelihood(
     z_safe = jnp.where(valid[:, None], z, 0.0)
     resid_r, resid_b = _residuals(poses, landmark_positions, z_safe)
     sd = params.sd
-    log_norm = -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi)
-    ll = log_norm - 0.5 * ((resid_r / sd[0]) ** 2 + (resid_b / sd[1]) ** 2)
-    return jnp.sum(jnp.where(valid, ll, 0.0), axis=-1)
+    # An invalid slot is switched off by per-slot constants (sd = ∞, log-normaliser 0: its term is
+    # exactly 0), not by a select on each particle–slot term: XLA:CPU fuses the [K] constants
+    # into the [N, K] loop, where a select on the [N, K] terms cost about as much as the rest of
+    # the likelihood (W2, N = 10⁴: 1.0 ms against 0.55 ms). Valid slots compute the same expression.
+    inf = jnp.asarray(jnp.inf, resid_r.dtype)
+    sd_r, sd_b = jnp.where(valid, sd[0], inf), jnp.where(valid, sd[1], inf)
+    log_norm = jnp.where(valid, -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi), 0.0)
+    return jnp.sum(log_norm - 0.5 * ((resid_r / sd_r) ** 2 + (resid_b / sd_b) ** 2), axis=-1)
 
 
 def _residuals(poses: jax.Array, landmark_positions: jax.Array, z: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -184,7 +184,7 @@ def _standard_normal_unless_zero(key: jax.Array, shape: tuple[int, ...], dtype, 
 
 def _add_pose_noise(key: jax.Array, poses: jax.Array, pose_sd: jax.Array) -> jax.Array:
     noisy = poses + _standard_normal_unless_zero(key, poses.shape, poses.dtype, pose_sd) * pose_sd
-    return noisy.at[..., 2].set(wrap_angle(noisy[..., 2]))
+    return _wrap_heading(noisy)
 
 
 # ---------------------------------------------------------------------------
@@ -249,7 +249,8 @@ def odometry_control(previous_odometry_pose: jax.Array, odometry_pose: jax.Array
 
 def _wrap_heading(pose: jax.Array) -> jax.Array:
     """``pose`` with θ wrapped to ``[-π, π)``, built by concatenation: under ``vmap`` XLA:CPU turns
-    ``.at[..., 2].set`` into a scatter that copied the whole particle array (measured 28 ns/element)."""
+    ``.at[..., 2].set`` into a scatter that copied the whole particle array (measured 28 ns/element),
+    and even unbatched it cost the W2 motion 0.2 ms of 0.7 ms at N = 10⁴ (2-core AMD EPYC)."""
     return jnp.concatenate([pose[..., :2], wrap_angle(pose[..., 2:3])], axis=-1)
 
 

@@ -528,19 +528,27 @@ def annotate_ratios(rows: Iterable[dict]) -> None:
             r["ratio_to_floor"] = r["median_s"] / r["floor_s"]
 
 
-def variant_label(r: dict) -> str:
-    """``"<scheme> <dtype>"`` for rows that carry a ``scheme`` (W1), else ``""``."""
-    if "scheme" not in r:
-        return ""
-    return " ".join(str(v) for v in (r.get("scheme"), r.get("dtype")) if v)
+def variant_label(r: dict, with_dtype: bool = False) -> str:
+    """What tells a row from its neighbours of the same size, implementation and mode: its
+    ``method`` (S1, S2, W5), ``scheme`` (W1), and its ``dtype`` where the row has a ``scheme``
+    or ``with_dtype`` (a workload timed in several precisions, W4); ``""`` when none applies."""
+    parts = [r.get("method"), r.get("scheme")]
+    if "scheme" in r or with_dtype:
+        parts.append(r.get("dtype"))
+    return " ".join(str(v) for v in parts if v)
 
 
 def format_table(rows: Sequence[dict]) -> str:
     """Compact terminal table: workload, size, implementation, mode, median, ×fastest peer, ×floor.
 
-    Where rows carry a ``scheme`` (W1) a ``variant`` column after ``mode`` shows it with the dtype.
+    A ``variant`` column after ``mode`` shows :func:`variant_label` where any row has one.
     """
-    with_variant = any("scheme" in r for r in rows)
+    dtypes: dict[str, set] = {}
+    for r in rows:
+        dtypes.setdefault(r["workload"], set()).add(r.get("dtype"))
+    mixed = {w for w, d in dtypes.items() if len(d) > 1}
+    labels = [variant_label(r, r["workload"] in mixed) for r in rows]
+    with_variant = any(labels)
     header = (
         ("workload", "size", "implementation", "mode")
         + (("variant",) if with_variant else ())
@@ -548,9 +556,9 @@ def format_table(rows: Sequence[dict]) -> str:
     )
     lead = len(header) - 3
     lines = []
-    for r in rows:
+    for r, label in zip(rows, labels):
         first = (r["workload"], size_label(r["size"]), r["implementation"], r["mode"]) + (
-            (variant_label(r),) if with_variant else ()
+            (label,) if with_variant else ()
         )
         if r.get("median_s") is None:
             lines.append(first + ("skipped", "", ""))
@@ -576,7 +584,7 @@ def format_table(rows: Sequence[dict]) -> str:
         out.append("  ".join(c.ljust(w) if i < lead else c.rjust(w) for i, (c, w) in enumerate(zip(l, widths))))
     skipped = [r for r in rows if r.get("median_s") is None]
     for r in skipped:
-        variant = variant_label(r)
+        variant = variant_label(r, r["workload"] in mixed)
         out.append(
             f"  skipped: {r['workload']} {size_label(r['size'])} {r['implementation']} {r['mode']}"
             f"{' ' + variant if variant else ''}: {r.get('skipped')}"

@@ -42,11 +42,14 @@ Modes, as S1 (:mod:`benchmarks.workloads.s1_hf_particles`): ``per_call``
 ``100 · repeats`` steps, default repeats 2, within a 20 s budget) and
 ``in_scan`` (``run`` over 200 steps for PF/PS-SLAM, 20 for FastSLAM, median
 of ``repeats`` calls, default 3, within 30 s, / steps). ``in_scan`` calls
-``run(..., donate_state=True)`` on a fresh prefilled state made before the
-timer starts: without donation ``run`` copies the whole state into its scan
-once per call (``O(N)``, amortised over the steps; PF-SLAM at 100,000 tags
-0.53 ms per step instead of 0.27 ms). The row records the time of one such
-copy in ``state_copy_s`` and the state size in ``state_bytes``.
+the donated jitted scan ``run.jitted_donated`` on a fresh prefilled state made
+before the timer starts: without donation ``run`` copies the whole state into
+its scan once per call (``O(N)``, amortised over the steps; PF-SLAM at 100,000
+tags 0.53 ms per step instead of 0.27 ms). The row records the time of one
+such copy in ``state_copy_s``, the state size in ``state_bytes``, and in
+``public_call_s`` the median time of one public ``run(..., donate_state=True)``
+call on a fresh state, which adds the check of a state the filter has not seen
+(one pass over it, once per call: O(N), not per step).
 
 Every row carries ``ratio_to_10_tags``: its median over the median of the
 same method and mode at 10 tags (measured earlier in the same run); the

@@ -24,30 +24,39 @@ filtered means ``[B, T, 4]`` and each sequence's log-likelihood
 
 Implementations
 ---------------
+jaxnav, dynamax and numpy are timed in float32 and in float64 (one row each,
+told apart by ``dtype``); the float64 JAX rows convert their inputs, compile
+and run inside ``jax.enable_x64(True)``, the float32 rows inside
+``jax.enable_x64(False)``, and every JAX row checks that its filtered means
+come back in its dtype. Rows of a size are listed float64 first, so that the
+floor line of the plot (one per B: the last row's) is the float32 floor.
+
 * ``jaxnav`` ``in_scan``: ``jax.jit(jax.vmap(one sequence))``, one sequence a
   ``lax.scan`` over T of :func:`jaxnav.core.kalman.kalman_predict` and
-  :func:`jaxnav.core.kalman.kalman_update` (Joseph form, Cholesky solves),
-  float32. ``compile_s`` is measured once per B. (This workload's profile
-  led to the core's unrolled small Cholesky and reassociated Joseph form:
-  a batched ``[B,4,4] @ [B,4,4]`` product costs XLA:CPU about a microsecond
-  per batch element, LAPACK custom calls run once per element.)
+  :func:`jaxnav.core.kalman.kalman_update` (Joseph form, Cholesky solves).
+  ``compile_s`` is measured once per B and dtype. In float32 these run as
+  unrolled scalar code, every matrix entry a ``[B]`` vector, which XLA:CPU
+  fuses into elementwise loops over the batch; in float64 as small matrix
+  products (the measurements behind that choice are in ``kalman.py``).
 * ``numpy`` ``per_call``: :func:`benchmarks.peers.numpy_kf.numpy_kf_batch`,
-  vectorised over B, a Python loop over T, float32, Joseph form.
+  vectorised over B, a Python loop over T, Joseph form.
 * ``filterpy`` ``per_call``: ``filterpy.kalman.KalmanFilter`` per sequence and
-  step (float64, Joseph form, its ``log_likelihood`` property each step). At
+  step (float64 only, Joseph form, its ``log_likelihood`` property each step). At
   B > :data:`FILTERPY_SUBSET` only the first ``FILTERPY_SUBSET`` sequences
   are timed and the time is scaled by ``B / FILTERPY_SUBSET`` (the work is
   exactly linear in B: one independent Python loop per sequence); the row
   says so in ``extrapolated_from``.
 * ``dynamax`` ``in_scan``: ``jax.jit(jax.vmap(lgssm_filter))`` of
-  ``dynamax.linear_gaussian_ssm`` (float32, standard-form covariance update
-  ``P − K S Kᵀ``), skipped with the reason when dynamax is not importable.
-  dynamax conditions on ``z_0`` before its first prediction, so it is given
-  the predicted prior ``(A m0_b, A P0_b Aᵀ + Q)``: the same filter.
+  ``dynamax.linear_gaussian_ssm`` (standard-form covariance update
+  ``P − K S Kᵀ``; ``pip install -e '.[bench]'`` installs it), skipped with
+  the reason when dynamax is not importable. dynamax conditions on ``z_0``
+  before its first prediction, so it is given the predicted prior
+  ``(A m0_b, A P0_b Aᵀ + Q)``: the same filter.
 
 Floor
 -----
-Bytes that must move once for one batch, ``b = 4`` (float32)::
+Bytes that must move once for one batch, ``b`` bytes per number (4 for the
+float32 rows, 8 for the float64 rows, filterpy's included)::
 
     observations read        B · T · 2 · b
     filtered means written   B · T · 4 · b
@@ -78,10 +87,12 @@ DT = 0.1  # s
 ACCEL_PSD = 0.05  # q, m²/s³
 OBS_SD = (0.3, 0.2)  # m
 FLOAT_BYTES = 4
+DTYPES = ("float64", "float32")  # the order of the rows of a size
 FILTERPY_SUBSET = 5
 FLOOR_DOC = (
-    "B * b * (6 T + 21) bytes per batch, b = 4 (float32): observations read (2 T), filtered means "
-    "written (4 T), log-likelihood written (1), m0 and P0 read (4 + 16), per sequence; / measured bandwidth"
+    "B * b * (6 T + 21) bytes per batch, b = 4 (float32 rows) or 8 (float64 rows): observations read (2 T), "
+    "filtered means written (4 T), log-likelihood written (1), m0 and P0 read (4 + 16), per sequence; "
+    "/ measured bandwidth"
 )
 
 __all__ = [
@@ -196,7 +207,7 @@ def dynamax_filter():
         return _JITTED["dynamax"], None
     mod, why = optional_import("dynamax.linear_gaussian_ssm")
     if mod is None:
-        return None, why.replace("install with pip install -e '.[bench]'", "install with pip install dynamax")
+        return None, why
 
     def run(m0, p0, zs, a, q, c, r):
         n, mdim = a.shape[0], c.shape[0]
@@ -233,9 +244,19 @@ def _reps(ctx: Context, b: int) -> int:
     return ctx.reps(10 if b <= 100 else 5)
 
 
-def _jax_row(ctx: Context, size: dict, impl: str, fn, args, floor_s: float, note: str) -> dict:
+def _x64(dtype: str):
+    """float64 rows run inside ``jax.enable_x64(True)``, float32 rows inside ``jax.enable_x64(False)``."""
+    return jax.enable_x64(dtype == "float64")
+
+
+def _jax_row(ctx: Context, size: dict, impl: str, fn, inp: KFInputs, dtype: str, floor_s: float, note: str) -> dict:
+    """Time the jitted ``fn`` on ``inp`` converted to ``dtype`` (the caller holds the x64 setting)."""
     b = int(size["B"])
-    compile_s = ctx.compile_s((NAME, impl, b), fn, *args)
+    args = jax_args(inp, jnp.dtype(dtype))
+    compile_s = ctx.compile_s((NAME, impl, dtype, b), fn, *args)  # before any call: a compiled call is cached
+    means, _ = jax.block_until_ready(fn(*args))
+    if means.dtype != jnp.dtype(dtype):
+        raise TypeError(f"{impl} returned {means.dtype} filtered means for {dtype} inputs")
     call = lambda: jax.block_until_ready(fn(*args))
     t = time_calls(call, repeats=_reps(ctx, b), warmup=1, budget_s=30.0, min_repeats=3)
     return make_row(
@@ -247,19 +268,23 @@ def _jax_row(ctx: Context, size: dict, impl: str, fn, args, floor_s: float, note
         compile_s=compile_s,
         floor_s=floor_s,
         per_sequence_s=t.median_s / b,
-        dtype="float32",
+        dtype=dtype,
         note=note,
     )
 
 
-def _numpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
-    from benchmarks.peers.numpy_kf import DEFAULT_DTYPE, numpy_kf_batch
+def _numpy_row(ctx: Context, size: dict, inp: KFInputs, dtype: str, floor_s: float) -> dict:
+    from benchmarks.peers.numpy_kf import numpy_kf_batch
 
     b = int(size["B"])
     a, q, c, r = model()
-    m0, p0, zs = (np.asarray(x, DEFAULT_DTYPE) for x in (inp.m0, inp.p0, inp.zs))
+    m0, p0, zs = (np.asarray(x, dtype) for x in (inp.m0, inp.p0, inp.zs))
     t = time_calls(
-        lambda: numpy_kf_batch(m0, p0, zs, a, q, c, r), repeats=_reps(ctx, b), warmup=1, budget_s=30.0, min_repeats=3
+        lambda: numpy_kf_batch(m0, p0, zs, a, q, c, r, dtype=np.dtype(dtype).type),
+        repeats=_reps(ctx, b),
+        warmup=1,
+        budget_s=30.0,
+        min_repeats=3,
     )
     return make_row(
         NAME,
@@ -269,7 +294,7 @@ def _numpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
         t,
         floor_s=floor_s,
         per_sequence_s=t.median_s / b,
-        dtype="float32",
+        dtype=dtype,
         note="vectorised over B, Python loop over T, Joseph form",
     )
 
@@ -277,7 +302,7 @@ def _numpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
 def _filterpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> dict:
     mod, why = optional_import("filterpy.kalman")
     if mod is None:
-        return skipped_row(NAME, "filterpy", size, "per_call", why)
+        return skipped_row(NAME, "filterpy", size, "per_call", why, dtype="float64")
     from benchmarks.peers.numpy_kf import filterpy_kf
 
     b = int(size["B"])
@@ -311,19 +336,30 @@ def _filterpy_row(ctx: Context, size: dict, inp: KFInputs, floor_s: float) -> di
     )
 
 
-def _dynamax_row(ctx: Context, size: dict, args, floor_s: float) -> dict:
+def _dynamax_row(ctx: Context, size: dict, inp: KFInputs, dtype: str, floor_s: float) -> dict:
     fn, why = dynamax_filter()
     if fn is None:
-        return skipped_row(NAME, "dynamax", size, "in_scan", why)
+        return skipped_row(NAME, "dynamax", size, "in_scan", why, dtype=dtype)
     return _jax_row(
         ctx,
         size,
         "dynamax",
         fn,
-        args,
+        inp,
+        dtype,
         floor_s,
         "jit(vmap(dynamax.linear_gaussian_ssm.lgssm_filter)), standard-form update P - K S K^T",
     )
+
+
+def _in_x64(dtype: str, fn):
+    """``fn`` run inside the x64 setting of ``dtype``."""
+
+    def run():
+        with _x64(dtype):
+            return fn()
+
+    return run
 
 
 def run(ctx: Context, size: dict) -> list[dict]:
@@ -331,22 +367,38 @@ def run(ctx: Context, size: dict) -> list[dict]:
     if int(size["T"]) != T:
         raise ValueError(f"W4 is defined for T = {T}")
     inp = _inputs(b)
-    args = jax_args(inp)
-    floor_s = ctx.floor(floor_bytes(b))
+    x64_before = bool(jax.config.jax_enable_x64)
     rows = []
-    rows += guarded(
-        ctx,
-        NAME,
-        "jaxnav",
-        size,
-        "in_scan",
-        lambda: _jax_row(
-            ctx, size, "jaxnav", jaxnav_filter(), args, floor_s, "jit(vmap(lax.scan of kalman_predict + kalman_update))"
-        ),
-    )
-    rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, inp, floor_s))
-    rows += guarded(ctx, NAME, "filterpy", size, "per_call", lambda: _filterpy_row(ctx, size, inp, floor_s))
-    rows += guarded(ctx, NAME, "dynamax", size, "in_scan", lambda: _dynamax_row(ctx, size, args, floor_s))
+    for dtype in DTYPES:
+        floor_s = ctx.floor(floor_bytes(b, nbytes=np.dtype(dtype).itemsize))
+        rows += guarded(
+            ctx,
+            NAME,
+            "jaxnav",
+            size,
+            "in_scan",
+            _in_x64(
+                dtype,
+                lambda: _jax_row(
+                    ctx,
+                    size,
+                    "jaxnav",
+                    jaxnav_filter(),
+                    inp,
+                    dtype,
+                    floor_s,
+                    "jit(vmap(lax.scan of kalman_predict + kalman_update))",
+                ),
+            ),
+        )
+        rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, inp, dtype, floor_s))
+        if dtype == "float64":
+            rows += guarded(ctx, NAME, "filterpy", size, "per_call", lambda: _filterpy_row(ctx, size, inp, floor_s))
+        rows += guarded(
+            ctx, NAME, "dynamax", size, "in_scan", _in_x64(dtype, lambda: _dynamax_row(ctx, size, inp, dtype, floor_s))
+        )
+    if bool(jax.config.jax_enable_x64) != x64_before:
+        raise RuntimeError(f"W4 changed jax_enable_x64 from {x64_before} to {jax.config.jax_enable_x64}")
     return rows
 
 
@@ -358,5 +410,6 @@ register(
         run=run,
         x_key="B",
         floor_doc=FLOOR_DOC,
+        series_key="dtype",
     )
 )

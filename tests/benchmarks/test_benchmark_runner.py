@@ -41,3 +41,44 @@ def test_each_size_is_written_as_it_finishes_and_a_full_run_is_marked_complete(t
     assert run.main(["--only", "ZZ", "--out", str(out), "--no-plot", "--retries", "0"]) == 0
     full = json.loads(out.read_text())
     assert full["complete"] is True and [r["size"]["n"] for r in full["rows"]] == [1, 2]
+
+
+def test_terminal_table_tells_methods_and_precisions_apart():
+    from benchmarks.harness import format_table
+
+    def row(workload, impl, **extra):
+        return dict(workload=workload, implementation=impl, size={"B": 1}, mode="in_scan", median_s=1e-3, **extra)
+
+    kf = [row("W4", "jaxnav", dtype="float32"), row("W4", "jaxnav", dtype="float64")]
+    slam = [
+        row("S2", "jaxnav", method="pf_slam", dtype="float32"),
+        row("S2", "jaxnav", method="ps_slam", dtype="float32"),
+    ]
+    lines = format_table(kf + slam).splitlines()
+    assert "variant" in lines[0]
+    for label in ("float32", "float64", "pf_slam", "ps_slam"):
+        assert sum(label in line for line in lines[2:]) >= 1
+    # one precision in a workload: the dtype is not shown
+    assert not any("float32" in line for line in lines if line.startswith("S2"))
+    # nothing to tell apart: no variant column
+    assert "variant" not in format_table([row("W2", "jaxnav", dtype="float32")]).splitlines()[0]
+
+
+def test_before_after_table_pairs_rows_and_divides(tmp_path):
+    import json
+
+    from benchmarks.before_after import table
+
+    def result(path, median):
+        rows = [
+            dict(
+                workload="W4", implementation="jaxnav", size={"B": 1}, mode="in_scan", dtype="float32", median_s=median
+            ),
+            dict(workload="W4", implementation="dynamax", size={"B": 1}, mode="in_scan", dtype="float64", median_s=1.0),
+        ]
+        path.write_text(json.dumps({"machine": {"cpu": "cpu", "cores": 2}, "rows": rows}))
+        return str(path)
+
+    text = table(result(tmp_path / "b.json", 2e-3), result(tmp_path / "a.json", 1e-3), implementation="jaxnav")
+    (line,) = [l for l in text.splitlines() if l.startswith("| W4")]
+    assert line == "| W4 | B=1 |  | jaxnav | in_scan | float32 | 2.00 ms | 1.00 ms | 0.50 |"

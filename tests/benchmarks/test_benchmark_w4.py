@@ -18,8 +18,13 @@ Tolerances:
   0.04 = 2.5e-8 of the gain per step (λmin(S) ≥ λmin(R) = 0.2² m²); the
   bounds 1e-6 m (means) and 1e-5 (log-likelihood, a sum over 40 steps)
   leave a factor ≥ 10 over that.
-* float32 (what the benchmark times): 1e-4 relative, as in
-  ``tests/core/test_kalman.py`` for the float32 Kalman filters on this model.
+* float32: 1e-4 relative, as in ``tests/core/test_kalman.py`` for the
+  float32 Kalman filters on this model.
+
+The benchmark times jaxnav, dynamax and NumPy in both float32 and float64;
+:func:`test_rows_float32_and_float64` runs the workload once at B = 1 and
+checks that every row is there once per dtype, that the float64 rows have the
+float64 floor, and that ``jax_enable_x64`` is left as it was.
 
 A negative control shows the comparison can fail: the NumPy filter with
 R scaled by 1.1 disagrees with the reference far beyond these tolerances.
@@ -115,3 +120,25 @@ def test_negative_control_wrong_noise_is_detected(inputs, reference):
     m, ll = numpy_kf_batch(inputs.m0, inputs.p0, inputs.zs, a, q, c, 1.1 * r, dtype=np.float64)
     assert np.max(np.abs(ll - ref_ll)) > 1e3 * 1e-5
     assert np.max(np.abs(m - ref_m)) > 1e3 * 1e-6
+
+
+def test_rows_float32_and_float64():
+    from benchmarks.harness import Context
+
+    ctx = Context(quick=True, repeats=1, bandwidth=1e10, retries=0)
+    x64_before = bool(jax.config.jax_enable_x64)
+    rows = w4.run(ctx, {"B": 1, "T": w4.T})
+    assert bool(jax.config.jax_enable_x64) == x64_before
+    keys = [(r["implementation"], r["dtype"]) for r in rows]
+    expected = {("jaxnav", d) for d in w4.DTYPES} | {("numpy", d) for d in w4.DTYPES}
+    expected |= {("dynamax", d) for d in w4.DTYPES} | {("filterpy", "float64")}
+    assert sorted(keys) == sorted(expected)
+    for r in rows:
+        if r.get("median_s") is None:  # an optional peer that is not installed
+            assert r["implementation"] in ("dynamax", "filterpy") and "skipped" in r, r
+            continue
+        nbytes = np.dtype(r["dtype"]).itemsize
+        assert r["floor_s"] == pytest.approx(w4.floor_bytes(1, nbytes=nbytes) / 1e10)
+    jaxnav = {r["dtype"]: r for r in rows if r["implementation"] == "jaxnav"}
+    assert jaxnav["float32"]["median_s"] > 0 and jaxnav["float64"]["median_s"] > 0
+    assert jaxnav["float64"]["compile_s"] > 0 and jaxnav["float32"]["compile_s"] > 0

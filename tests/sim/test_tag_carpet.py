@@ -481,9 +481,13 @@ def test_kidnap_teleports_and_zeroes_the_odometry(getkey, world):
     assert float(jnp.max(jnp.abs(run.odometry[step + 1, :3] - u[step + 1, :3]))) > 0  # noise elsewhere
     # before, the controls from the start; afterwards the same controls from the new pose
     np.testing.assert_allclose(run.true_poses[:step], trajectories.integrate_controls(start, u[:step]), atol=1e-6)
-    np.testing.assert_allclose(
-        run.true_poses[step + 1 :], trajectories.integrate_controls(target, u[step + 1 :]), atol=1e-6
-    )
+    # after the jump, against the float64 integration from the new pose: two float32 programs of
+    # the same recursion may round differently (XLA contracts multiply-adds per program), and over
+    # 4,000 steps their headings drifted 1.2e-6 apart; float32 accumulation stays below 1e-4
+    after = np.asarray(run.true_poses[step + 1 :])
+    want = _integrate64(target, u[step + 1 :])
+    np.testing.assert_allclose(after[:, :2], want[:, :2], atol=1e-4)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (after[:, 2] - want[:, 2]))), 0, atol=1e-4)
     again = tc.detect(c, target, r)
     for a, b in zip(jax.tree_util.tree_map(lambda x: x[step], run.detections), again):
         np.testing.assert_array_equal(a, b)

@@ -166,9 +166,9 @@ def wrap_angle(angle: jax.Array) -> jax.Array:
 
 
 def _wrap_angle_floor(angle: jax.Array) -> jax.Array:
-    """:func:`wrap_angle` as ``a − 2π·⌊(a + π)/2π⌋``: eight times cheaper than ``%`` on XLA:CPU,
-    but at the two ends the result may fall one rounding outside ``[-π, π)``, so it is kept for
-    particle moments and draws, where that cannot matter."""
+    """``a − 2π·⌊(a + π)/2π⌋``: at the two ends the result may fall one rounding outside
+    ``[-π, π)``. :func:`wrap_angle` corrects that; particle moments and draws, where it cannot
+    matter, use this form directly."""
     return angle - _TWO_PI * jnp.floor((angle + jnp.pi) * (1.0 / _TWO_PI))
 
 

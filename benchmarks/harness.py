@@ -1,7 +1,7 @@
 """Timing, machine description, memory bandwidth, result rows and the terminal table.
 
-Timing protocol (BENCHMARKS.md; STYLE.md item 14)
--------------------------------------------------
+Timing protocol
+---------------
 * Every JAX function is compiled before it is timed. Compile time is measured
   on its own as the wall time of ``jax.jit(f).lower(*args).compile()`` (trace +
   lower + XLA compile) and reported as ``compile_s``; it is never part of
@@ -137,7 +137,7 @@ def make_row(
     floor_s: float | None = None,
     **extra: Any,
 ) -> dict:
-    """One measurement in the BENCHMARKS.md "Interface" format.
+    """One measurement row (the row format of ``benchmarks/README.md``).
 
     Required keys: ``workload, implementation, size, mode, median_s``;
     ``compile_s`` and ``floor_s`` where they apply. Extra keys (``min_s``,

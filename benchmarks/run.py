@@ -3,7 +3,7 @@
 Runs the registered workloads (all by default), writes one JSON file
 (default ``benchmarks/results/latest.json``) holding ``machine`` (CPU, cores,
 the memory bandwidth measured at the start of this run), ``versions`` and
-``rows`` (BENCHMARKS.md "Interface"), draws one PNG per workload beside it and
+``rows`` (one per measurement, :func:`benchmarks.harness.make_row`), draws one PNG per workload beside it and
 prints a table. Workloads are discovered from :mod:`benchmarks.workloads`; a
 new workload is a new module there, this file does not change.
 """

@@ -164,6 +164,16 @@ def _names(option: str, text: str, choices: tuple[str, ...], what: str) -> list[
     return names
 
 
+def _compiling(text: str) -> None:
+    """Say on stderr, when it is a terminal, that XLA compiles (most of a first run's wait) before output."""
+    try:
+        terminal = sys.stderr.isatty()
+    except (AttributeError, ValueError):  # no isatty, or a closed stream
+        terminal = False
+    if terminal:
+        print(text, file=sys.stderr, flush=True)
+
+
 def _write_plot(draw, path: str) -> None:
     """Call ``draw(path)`` and say where the PNG went, or that matplotlib is missing."""
     try:
@@ -187,6 +197,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         f"jaxnav {__version__} demo: Monte Carlo localization ([A] Alg. 3), {args.particles} particles, "
         f"10 m room, 8 landmarks, {args.steps} steps, seed {args.seed}"
     )
+    _compiling("compiling the filter (first call)…")
     result = run_demo(seed=args.seed, num_steps=args.steps, num_particles=args.particles)
     print(f"{'step':>6} {'time [s]':>9} {'position error [m]':>19}")
     every = max(1, args.steps // 10)
@@ -226,6 +237,7 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
     print("Leung et al., IJRR 30(8), 2011 (please cite the dataset)")
     rows = []
     for robot in robots:
+        _compiling(f"robot {robot}: reading its log, compiling and running {len(algorithms)} filter(s)…")
         try:
             seq, results = xp.run_robot(robot, algorithms, duration=args.duration, seed=args.seed, root=args.data)
         except ValueError as err:
@@ -294,6 +306,7 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
         f"jaxnav {__version__} hf-slam: {args.method} on {setting.density:g} tags/m² (pitch {1000 * setting.pitch:.0f} mm), "
         f"{args.reader_mm:g} mm readers, {setting.trajectory} trajectory, {setting.robot_particles} robot particles, seed {args.seed}"
     )
+    _compiling("compiling the simulation and the filter (first call)…")
     errors, world, result = xp.run_once(jax.random.PRNGKey(args.seed), args.method, setting)
     run = world.run
     steps = run.odometry.shape[0]
@@ -346,6 +359,7 @@ def _cmd_ir(args: argparse.Namespace) -> int:
 
     from jaxnav.experiments.ir import positioning as xp
 
+    _compiling("compiling the simulation and the filter (first call)…")
     drive = xp.drive_once(jax.random.PRNGKey(args.seed), setting)
     steps = drive.sim.controls.shape[0]
     det = int(np.asarray(drive.sim.detections.valid).sum())
@@ -393,6 +407,7 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
         f"σ_phase = {setting.phase_sigma_fraction:g} λ, {args.seeds} seed(s) from {args.seed}"
     )
     results = []
+    _compiling("compiling the filter…")
     for name in names:
         res = xp.localize(name, weightings, setting, seeds=args.seeds, seed=args.seed, root=args.data)
         results.append(res)
@@ -406,9 +421,13 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
 def _cmd_experiments(args: argparse.Namespace) -> int:
     from jaxnav.experiments import registry
 
+    if args.action is None:  # the actions and examples, as for a missing argument: exit status 2
+        print(args.help_text(), end="", file=sys.stderr)
+        return 2
     if args.action == "list":
+        width = max(map(len, registry.names()))
         for name in registry.names():
-            print(f"{name:<12} {registry.get(name).title}")
+            print(f"{name:<{width}}  {registry.get(name).title}")
         return 0
     if not args.name:
         raise ValueError("name an experiment (see 'jaxnav experiments list')")
@@ -432,22 +451,114 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         workers=args.workers,
         fresh=args.fresh,
+        plot=False,
     )
     print(exp.render(result))
+    stem = registry.output_stem(args.out, exp.name, args.quick)
+    print(f"wrote {stem}.json and {stem}.md")
+    _write_plot(lambda path: exp.plot(result, path), f"{stem}.png")
     return 0
 
 
+_THESES = """\
+  [A] G. Apostolakis, "Unmanned Vehicle Navigation in GPS-Denied Environments", diploma thesis,
+      Technical University of Crete, 2020: UHF-RFID localization, EKF/UKF/grid/MCL, EKF-SLAM, FastSLAM
+  [W] J. Wang, "SLAM Method for A RFID Positioning System and A Low-cost IR Positioning System for The
+      Indoor Mobile Robot", doctoral dissertation, University of Fukui, 2019: HF-RFID SLAM, IR positioning"""
+
+_DOCS = (
+    "Documentation: docs/ in the repository (build the site with 'sphinx-build docs docs/_build/html')\n"
+    "and its README.md."
+)
+
+_DATA = (
+    "The data are read from the folder --data names, else $JAXNAV_DATA, else ../shared/data (from the\n"
+    "current folder or the repository's): a folder holding {folder}/, downloaded from\n{source}."
+)
+
+
+def _examples(*pairs: tuple[str, str]) -> str:
+    """An ``Examples:`` section: each command line under a ``#`` comment saying what it does."""
+    return "Examples:\n" + "\n".join(f"  # {what}\n  {command}" for what, command in pairs)
+
+
+def _command(sub, name: str, help: str, description: str, examples: str) -> argparse.ArgumentParser:
+    """A subcommand whose ``--help`` shows ``description`` above the options and ``examples`` below."""
+    return sub.add_parser(
+        name,
+        help=help,
+        description=description,
+        epilog=examples,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="jaxnav", description="Vectorised JAX particle filters for indoor localization and SLAM.")
+    parser = _Parser(
+        prog="jaxnav",
+        description="Vectorised JAX particle filters for indoor robot localization and SLAM: the systems of "
+        "two theses,\ncited as [A] and [W] in the help of every command, and the classical filters they "
+        f"build on.\n\n{_THESES}",
+        epilog=_examples(
+            ("Monte Carlo localization in a simulated room; writes jaxnav-demo.png", "jaxnav demo"),
+            ("HF-RFID PF-SLAM of [W] on a simulated tag carpet, one lap, no PNG", "jaxnav hf-slam --laps 1 --out ''"),
+            ("the tables and figures of [A] and [W] that can be reproduced", "jaxnav experiments list"),
+            (
+                "[W] Table 3.1 in its seconds-long variant, 2 runs per setting, results in xp/",
+                "jaxnav experiments run table-3.1 --quick --runs 2 --out xp",
+            ),
+        )
+        + f"\n\n'jaxnav COMMAND --help' tells what a command does, its options and examples.\n{_DOCS}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    demo = sub.add_parser("demo", help="run Monte Carlo localization in a simulated 10 m room")
+    demo = _command(
+        sub,
+        "demo",
+        "MCL in a simulated 10 m room ([A] Alg. 3): the quickest look",
+        """\
+Monte Carlo localization, MCL ([A] Alg. 3), in a simulated 10 m x 10 m room: a robot drives
+circles of radius 2.4 m (120 steps of 0.25 s a lap), measuring range and bearing to 8 landmarks
+on the walls, and the filter starts from a guess 1 m off. Prints the position error at every tenth
+of the run and its mean, and draws the true and estimated paths into a PNG (which needs matplotlib:
+pip install 'jaxnav[plot]').""",
+        _examples(
+            ("one lap with 1000 particles; writes jaxnav-demo.png", "jaxnav demo"),
+            (
+                "half a lap with 200 particles and another seed, no PNG",
+                "jaxnav demo --steps 60 --particles 200 --seed 3 --out ''",
+            ),
+        ),
+    )
     demo.add_argument("--steps", type=_positive_int, default=120, help="time steps of 0.25 s (default 120, one lap)")
     demo.add_argument("--particles", type=_positive_int, default=1000, help="number of particles (default 1000)")
     demo.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     demo.add_argument("--out", default="jaxnav-demo.png", help="PNG to write ('' for none; default jaxnav-demo.png)")
     demo.set_defaults(func=_cmd_demo)
-    mr = sub.add_parser("mrclam", help="run the classical filters on the UTIAS MRCLAM real dataset and score them")
+    mr = _command(
+        sub,
+        "mrclam",
+        "the filters of [A] ch. 2 on the real UTIAS MRCLAM dataset",
+        f"""\
+Dead reckoning, EKF and UKF localization, MCL with the known map, EKF-SLAM and FastSLAM 1.0 and
+2.0 ([A] ch. 2) on the real logs of the UTIAS MRCLAM dataset 7 (Leung et al., IJRR 30(8), 2011):
+the odometry of five robots and their range-bearing measurements of barcoded landmarks, with a
+Vicon ground truth. Prints, for each robot and filter, the position and heading RMSE, the ATE, the
+landmark RMSE of the SLAM filters and the time taken, and draws a PNG per robot (needs matplotlib).
+
+{_DATA.format(folder="utias-mrclam-dataset7", source="http://asrl.utias.utoronto.ca/datasets/mrclam/")}""",
+        _examples(
+            (
+                "robot 1, EKF and MCL, the first 60 s of its log, no PNG",
+                "jaxnav mrclam --robots 1 --algorithms ekf,mcl --duration 60 --out ''",
+            ),
+            (
+                "robot 2: EKF, EKF-SLAM and FastSLAM 2.0 over the first 2 minutes; writes jaxnav-mrclam-robot2.png",
+                "jaxnav mrclam --robots 2 --algorithms ekf,ekf_slam,fastslam2 --duration 120",
+            ),
+        ),
+    )
     mr.add_argument("--robots", default="1,2,3", help="comma-separated robots (default 1,2,3)")
     mr.add_argument(
         "--algorithms",
@@ -464,8 +575,32 @@ def build_parser() -> argparse.ArgumentParser:
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
     mr.set_defaults(func=_cmd_mrclam)
-    hf = sub.add_parser(
-        "hf-slam", help="run PF-SLAM, PS-SLAM or FastSLAM on a simulated HF-RFID tag carpet ([W] ch. 3-4)"
+    hf = _command(
+        sub,
+        "hf-slam",
+        "HF-RFID SLAM on a simulated tag carpet ([W] ch. 3-4)",
+        """\
+HF-RFID SLAM ([W] ch. 3-4): a robot with HF-RFID readers under it drives over a 3 m x 2.5 m carpet
+of passive tags laid on a grid (--density tags per m², each ±10 mm off its grid point) and
+detects the tags under each reader's square footprint (--reader-mm). From the odometry and these
+detections alone, PF-SLAM or PS-SLAM ([W]'s methods) or FastSLAM estimate the robot's path and
+the tags' positions. Prints the robot's mean errors (x, y, θ, dr) and the tags' (tx, ty, dt) in mm
+as [W]'s tables do, and draws the run into a PNG (needs matplotlib). 'jaxnav experiments' runs
+[W]'s tables and figures with many seeded runs.""",
+        _examples(
+            (
+                "PF-SLAM, 16 tags/m², 60 mm readers, three laps of the rectangle; writes jaxnav-hf-slam.png",
+                "jaxnav hf-slam",
+            ),
+            (
+                "PS-SLAM with 100 mm readers ([W] ch. 4), one lap, 200 robot particles, no PNG",
+                "jaxnav hf-slam --method ps_slam --reader-mm 100 --laps 1 --robot-particles 200 --out ''",
+            ),
+            (
+                "a kidnapping ([W] §3.4.3): the robot is carried off and PF-SLAM recovers",
+                "jaxnav hf-slam --trajectory kidnapping --laps 1 --out ''",
+            ),
+        ),
     )
     hf.add_argument("--method", choices=HF_METHODS, default="pf_slam", help="SLAM method (default pf_slam)")
     hf.add_argument(
@@ -496,7 +631,28 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)"
     )
     hf.set_defaults(func=_cmd_hf_slam)
-    irp = sub.add_parser("ir", help="localise with IR ceiling emitters on one simulated drive ([W] ch. 5)")
+    irp = _command(
+        sub,
+        "ir",
+        "IR ceiling-emitter positioning, one simulated drive ([W] ch. 5)",
+        """\
+The low-cost IR positioning system of [W] ch. 5: IR LEDs on the ceiling blink ID codes (a unique
+ID is an array of LEDs used once, a repeated ID a single LED used many times), a photodiode
+receiver on the robot decodes the IDs above it, and MCL ([W] Alg. 3) fuses them with the
+odometry, starting from an unknown pose once a unique ID is decoded. One simulated drive: laps of
+the predetermined trajectory (loop), the 70 marked spots (spots), or the trajectory with five turns
+(rotation). Prints the mean and maximum errors of the filter and of the odometry alone, and draws
+the drive into a PNG (needs matplotlib). 'jaxnav experiments' runs [W]'s tables with many seeded
+runs.""",
+        _examples(
+            ("three laps with the proposed layout and 1000 particles; writes jaxnav-ir.png", "jaxnav ir"),
+            ("the trajectory with five turns, no PNG", "jaxnav ir --drive rotation --out ''"),
+            (
+                "two laps with both emitters of repeated ID 2 switched off ([W] §5.4.5), no PNG",
+                "jaxnav ir --failed-code 2 --laps 2 --out ''",
+            ),
+        ),
+    )
     irp.add_argument(
         "--layout",
         choices=IR_LAYOUTS,
@@ -521,13 +677,37 @@ def build_parser() -> argparse.ArgumentParser:
         "--failed-code",
         type=_integer,
         default=0,
-        help="switch off the emitters of this repeated ID (1-9; default none)",
+        help="switch off the emitters of this repeated ID (the proposed layout has 1, 2, 4 and 5; default none)",
     )
     irp.add_argument("--particles", type=_positive_int, default=1000, help="particles (default 1000, as [W])")
     irp.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
     irp.set_defaults(func=_cmd_ir)
-    ur = sub.add_parser("uhf-real", help="localise the three tags of the AdaRF real UHF-RFID reads ([A] Alg. 6, 2D)")
+    ur = _command(
+        sub,
+        "uhf-real",
+        "UHF-RFID tag localization on the real AdaRF reads ([A] Alg. 6)",
+        f"""\
+UHF-RFID tag localization ([A] Alg. 6) on real reads: in the AdaRF dataset a reader's antenna
+moves along a 1 m track and reads the RSSI and phase of three target tags on 8 channels at 50
+points. A particle filter over a tag's 2D position (its height is known) weighs the reads by
+RSSI, by phase or by both (--weightings); the RSSI model's (k, θ) are fitted on another of the
+three tags, whose position is taken as known ([A] §4.3.1). Prints each tag's final error against
+the ground truth beside that of a uniform guess, and draws the estimates into a PNG per experiment
+(needs matplotlib).
+
+{_DATA.format(folder="adarf-uhf-rfid-phase", source="https://github.com/dapowan/AdaRF")}""",
+        _examples(
+            (
+                "the phase-only filter on the default experiment with 2000 particles, no PNG",
+                "jaxnav uhf-real --weightings phase --particles 2000 --out ''",
+            ),
+            (
+                "every weighting over 3 seeds; writes jaxnav-uhf-real-181218-01-50-8.png",
+                "jaxnav uhf-real --seeds 3",
+            ),
+        ),
+    )
     ur.add_argument(
         "--experiment", default="181218-01-50-8", help="AdaRF experiment folder, or 'all' (default 181218-01-50-8)"
     )
@@ -551,9 +731,36 @@ def build_parser() -> argparse.ArgumentParser:
     ur.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     ur.add_argument("--out", default="jaxnav-uhf-real", help="PNG prefix ('' for none; default jaxnav-uhf-real)")
     ur.set_defaults(func=_cmd_uhf_real)
-    xp = sub.add_parser("experiments", help="reproduce [W]'s and [A]'s tables and figures with batch Monte Carlo")
-    xp.add_argument("action", choices=("list", "run"), help="list the experiments, or run one")
-    xp.add_argument("name", nargs="?", help="experiment name (see 'list')")
+    xp = _command(
+        sub,
+        "experiments",
+        "reproduce the tables and figures of [A] and [W] (list, run)",
+        """\
+The tables and figures of [A] and [W], reproduced by batch Monte Carlo: each setting of a table or
+point of a figure is run --runs times with seeded keys, its runs vmapped in chunks of --chunk.
+'run NAME' writes into --out NAME.json (means and 95 % intervals, beside the thesis's values where
+it gives them), NAME.md (the table), NAME.png (needs matplotlib) and NAME.runs.json, the runs so
+far, saved after every chunk: the same command run again resumes an interrupted sweep. --quick
+runs the seconds-long variant (short runs, few particles) into NAME.quick.*.
+
+actions:
+  list        the experiments' names and what each reproduces
+  run NAME    run experiment NAME (see 'list')""",
+        _examples(
+            ("the experiments that can be run", "jaxnav experiments list"),
+            (
+                "[W] Table 3.1, the seconds-long variant, 2 runs per setting, into the folder xp",
+                "jaxnav experiments run table-3.1 --quick --runs 2 --out xp",
+            ),
+            (
+                "[W] Table 5.2 in the thesis's setting, 5 runs per setting, into the folder xp",
+                "jaxnav experiments run table-5.2 --runs 5 --out xp",
+            ),
+        ),
+    )
+    xp.usage = "%(prog)s [-h] {list,run} [NAME] [options]"
+    xp.add_argument("action", nargs="?", choices=("list", "run"), help="list the experiments, or run one")
+    xp.add_argument("name", nargs="?", metavar="NAME", help="experiment name (see 'list')")
     xp.add_argument("--runs", type=_positive_int, default=20, help="seeded runs per setting (default 20)")
     xp.add_argument("--out", default="jaxnav-experiments", help="output directory for JSON, Markdown and PNG")
     xp.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
@@ -570,8 +777,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="discard DIR/NAME.runs.json instead of resuming it (after changing the code)",
     )
     xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
-    xp.add_argument("--no-progress", action="store_true", help="no progress bar")
-    xp.set_defaults(func=_cmd_experiments)
+    xp.add_argument("--no-progress", action="store_true", help="no progress display")
+    xp.set_defaults(func=_cmd_experiments, help_text=xp.format_help)
     return parser
 
 

@@ -11,9 +11,10 @@ may differ in the last bits of a float, as between two XLA versions).
 
 * **XLA flags** :data:`TEST_XLA_FLAGS` are appended to ``XLA_FLAGS``: the
   CPU backend's LLVM optimisation off and the older fusion code generator,
-  which compile 2–3× faster and run 3–5× slower (measured on
-  test_fastslam/test_mcl/test_pf_slam: 227 s with XLA's defaults, 93 s with
-  these). Set ``JAXNAV_TEST_XLA_DEFAULTS=1`` to test with XLA's defaults.
+  which compile several times faster and run several times slower; for the
+  suite's small programs the compilation saved outweighs the run time lost
+  (compile-heavy files such as test_fastslam, test_mcl and test_pf_slam take
+  well under half as long). Set ``JAXNAV_TEST_XLA_DEFAULTS=1`` to test with XLA's defaults.
 * **One persistent compilation cache** per session (a temporary directory,
   removed at the end), so a program compiled in one process (a quick
   experiment's cell, say, that a notebook runs again) is not compiled again

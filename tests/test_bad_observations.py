@@ -3,7 +3,7 @@
 A NaN or an infinity in a valid slot is refused on the host with the argument and the slot
 named; inside a caller's ``jit`` (values unknown on the host) the slot is dropped and counted
 in ``info.num_ignored``, and every estimate stays finite. An integer mask of 0/1 filters exactly like
-the boolean one; other integers (a 0/2 mask, which a bitwise ``&`` used to turn into "drop every
+the boolean one; other integers (a 0/2 mask, which a bitwise ``&`` would turn into "drop every
 slot") are refused on the host and read as nonzero = set inside a caller's ``jit``; a float mask or
 float ids are refused.
 """
@@ -121,7 +121,7 @@ def test_float_masks_and_float_ids_are_refused_by_name(name):
 
 def test_tag_detections_with_an_integer_mask_update_the_tags():
     """PF-SLAM: an integer 0/1 mask detects like the boolean one (a bitwise & with a 0/2 mask
-    dropped every slot; such a mask is now refused on the host)."""
+    would drop every slot; such a mask is refused on the host)."""
     config = pf_slam.PFSLAMConfig(num_particles=8, num_tag_particles=4, max_tags=8)
     params = pf_slam.PFSLAMParams(OmniNoise(jnp.zeros(3)), hf_rfid.reader_params(0.06))
     control = jnp.asarray([0.0, 0.0, 0.0, 0.1])

@@ -1,4 +1,4 @@
-"""The public names users import exist (an import smoke test, STYLE item 9)."""
+"""The public names users import exist (an import smoke test)."""
 
 import jaxnav
 from jaxnav import core

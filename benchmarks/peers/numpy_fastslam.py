@@ -1,6 +1,6 @@
 """W3 peer in plain NumPy: one FastSLAM 1.0 step, vectorised over the particles.
 
-The model is BENCHMARKS.md W3, the same filter as ``jaxnav.slam.fastslam``
+The model is workload W3 (``benchmarks/README.md``), the same filter as ``jaxnav.slam.fastslam``
 with ``version=1``, the velocity motion model and range-bearing landmarks:
 
 * **motion** — the velocity model's exact circular arc (Thrun et al. eq. 5.9

@@ -1,6 +1,6 @@
 """W2 peers in plain NumPy: a vectorised MCL step, and its filterpy and particles variants.
 
-The model is exactly BENCHMARKS.md W2:
+The model is exactly workload W2 (``benchmarks/README.md``):
 
 * motion (Euler): ``x += v·Δt·cos θ``, ``y += v·Δt·sin θ``, ``θ += ω·Δt``, plus
   Gaussian noise with sd ``pose_sd = (0.02 m, 0.02 m, 0.01 rad)``;

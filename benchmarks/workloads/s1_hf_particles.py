@@ -1,6 +1,6 @@
 """S1 — HF-RFID SLAM time per update against the number of robot particles ([W] Fig. 3.6, Fig. 4.1a).
 
-The workload (BENCHMARKS.md "Seed curves"): PF-SLAM ([W] Alg. 1,
+The workload: PF-SLAM ([W] Alg. 1,
 :mod:`jaxnav.slam.pf_slam`), PS-SLAM ([W] Alg. 2, :mod:`jaxnav.slam.ps_slam`)
 and FastSLAM 1.0 on the HF reader model (:mod:`jaxnav.slam.fastslam` with
 ``observation_model="hf_footprint"``, ``motion_model="omni"``, observations
@@ -249,8 +249,8 @@ def time_in_scan(
         out = jax.block_until_ready(run_fn(key, fresh, config, params, controls, observations))
         dt = time.perf_counter() - t0
         # Freed after the timer: the result holds the donated state, and freeing PS-SLAM's 1.7 GB
-        # at 100,000 tags took about 0.25 s, which a discarded result spent inside the timer
-        # (S2 "in scan" then seemed to grow 10x with the map; per step it is flat).
+        # at 100,000 tags takes about 0.25 s, which a discarded result would spend inside the timer
+        # (S2's in_scan time would seem to grow with the map; per step it is flat).
         del out, fresh
         return dt
 

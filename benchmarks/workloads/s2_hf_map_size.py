@@ -1,6 +1,6 @@
 """S2 — HF-RFID SLAM time per update against the number of tags already in the map ([W] Fig. 3.8, Fig. 4.1b).
 
-The workload (BENCHMARKS.md "Seed curves"): 500 robot particles, maps of
+The workload: 500 robot particles, maps of
 N = 10, 100, 1,000, 10,000 and 100,000 tags already mapped (``--quick``:
 10 and 1,000); PF-SLAM and PS-SLAM (100 tag particles, lag 20) and FastSLAM
 1.0 on the HF reader model, 60 mm readers (the default array of eight,

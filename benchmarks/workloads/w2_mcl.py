@@ -1,6 +1,6 @@
 """W2 mcl-step: one Monte Carlo localization step on N pose particles.
 
-The workload (BENCHMARKS.md): velocity motion with Gaussian noise
+The workload: velocity motion with Gaussian noise
 sd ``(0.02 m, 0.02 m, 0.01 rad)``, ``v = 0.5 m/s, ω = 0.1 rad/s, Δt = 0.1 s``;
 8 landmarks on the border of a 10 m square (:func:`square_room_landmarks(10, 8)`),
 each observed every step by range-bearing (sd ``0.1 m, 0.05 rad``); Gaussian
@@ -27,8 +27,8 @@ Implementations
   time / 50.
 * ``jax-baseline`` ``in_scan``: a hand-written plain-JAX ``lax.scan`` of the
   same model (Euler motion, no guards, no pose estimate,
-  ``jnp.searchsorted``), the reference of STYLE.md item 14. Not a peer: it
-  shows what JAX itself reaches on this machine.
+  ``jnp.searchsorted``). Not a peer: it shows what plain JAX reaches on the
+  machine that runs the benchmark.
 * ``numpy`` ``per_call``: :class:`benchmarks.peers.numpy_mcl.NumpyMCL`,
   float32, vectorised, Euler motion.
 * ``filterpy`` ``per_call``: the same NumPy step with
@@ -41,7 +41,7 @@ Implementations
 
 jaxnav's velocity model moves along the exact arc (``sinc`` form) and its
 step also computes the weighted-mean pose estimate; the peers use the
-Euler motion BENCHMARKS.md states and skip the estimate, so jaxnav does
+Euler motion of the workload's definition and skip the estimate, so jaxnav does
 slightly more arithmetic per step than they do.
 
 Floor
@@ -262,7 +262,7 @@ def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) ->
 
 
 def _baseline_rows(ctx: Context, size: dict, n: int, state0, floor_s: float) -> list[dict]:
-    """Hand-written plain-JAX lax.scan of W2 (no guards), STYLE.md item 14."""
+    """Hand-written plain-JAX lax.scan of W2 (no guards), the reference of what plain JAX reaches."""
     landmarks, _, _, sim = _world()
     pose_sd = jnp.asarray(POSE_SD, jnp.float32)
     sd = jnp.asarray(SENSOR_SD, jnp.float32)

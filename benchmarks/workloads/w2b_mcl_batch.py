@@ -1,6 +1,6 @@
 """W2b mcl-batch: one step of R independent W2 filters at once, the shape of a Monte Carlo study.
 
-The workload (BENCHMARKS.md): the W2 model (:mod:`benchmarks.workloads.w2_mcl`:
+The workload: the W2 model (:mod:`benchmarks.workloads.w2_mcl`:
 Euler/velocity motion with noise sd ``(0.02 m, 0.02 m, 0.01 rad)``, 8
 landmarks on a 10 m square observed by range-bearing with sd ``(0.1 m,
 0.05 rad)``, ``logsumexp`` normalisation, ESS, systematic resampling every

@@ -1,6 +1,6 @@
 """W3 fastslam-step: one FastSLAM 1.0 step on M particles that each carry N landmarks.
 
-The workload (BENCHMARKS.md): FastSLAM 1.0, 2-D range-bearing;
+The workload: FastSLAM 1.0, 2-D range-bearing;
 M = 100, 500, 1000, 4000 particles; N = 10, 100, 1000 landmarks already in
 every particle (a mean and a 2 × 2 covariance each); K = 5 landmarks observed
 per step with known correspondences; an EKF update per observed landmark and

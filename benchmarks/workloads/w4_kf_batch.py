@@ -1,6 +1,6 @@
 """W4 kf-batch: a linear Kalman filter over B independent sequences of T = 1000 steps.
 
-Model (BENCHMARKS.md W4; the same as ``tests/core/test_kalman.py``): 4-D
+Model (the same as ``tests/core/test_kalman.py``): 4-D
 constant-velocity state ``(x, y, vx, vy)`` [m, m, m/s, m/s], Δt = 0.1 s,
 
 * ``x_t = A x_{t−1} + w``, ``A = [[I, Δt I], [0, I]]``,

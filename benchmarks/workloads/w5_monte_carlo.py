@@ -1,6 +1,6 @@
 """W5 Monte Carlo — R seeded PF-SLAM runs of the [W] Table 3.1 setting in one vmapped, jitted call.
 
-The workload (BENCHMARKS.md "Engine workloads"): PF-SLAM ([W] Alg. 1) on
+The workload: PF-SLAM ([W] Alg. 1) on
 ``HFSetting(density=16)`` of :mod:`jaxnav.experiments.hf_slam` with its
 defaults — 16 tags/m² on a 3 m × 2.5 m jittered carpet (143 tags), 60 mm
 readers, three laps of the 2 m × 1.5 m rectangle at 0.2 m/s (T = 1290 steps

@@ -52,7 +52,7 @@ def compiled_vmap(
       loop. Right for functions whose ``lax.cond`` branches differ greatly in
       cost: under ``vmap`` a ``cond`` with a batched predicate becomes a
       ``select`` that computes both branches at every call (IR MCL's
-      16,000-candidate re-draw: 5× slower per run under ``vmap``).
+      16,000-candidate re-draw makes a run several times slower under ``vmap``).
 
     Calls with the same ``fn`` object, argument shapes, ``mode`` and
     ``compiler_options`` (XLA options, e.g. ``{"xla_backend_optimization_level": 0}``)

@@ -1,12 +1,12 @@
 """Vectorisable float32 ``sin``, ``cos`` and ``atan2``, and an exact integer cumulative sum, for the hot paths.
 
-Why this module exists
-----------------------
+**Why this module exists**
+
 XLA:CPU lowers ``sin``/``cos``/``atan2`` to scalar routines that do not
-vectorise: on the 2-core Xeon this project is benchmarked on, ``jnp.arctan2``
-over 8·10⁶ float32 values took 280 ms against NumPy's 10 ms, and ``jnp.sin``
-70 ms against 8.6 ms, while ``exp``/``log``/``sqrt`` ran at NumPy's speed
-(``benchmarks/profile_w2.py``; the MCL step evaluates 8 bearings per particle).
+vectorise: ``jnp.arctan2`` and ``jnp.sin`` over large float32 arrays run many
+times slower than NumPy's vectorised versions, while ``exp``/``log``/``sqrt`` run
+at NumPy's speed (``benchmarks/profile_w2.py`` measures this; the MCL step
+evaluates 8 bearings per particle).
 The functions below are the Cephes single-precision algorithms (S. L.
 Moshier, *Methods and Programs for Mathematical Functions*, 1989) written
 with ``jnp`` arithmetic, which XLA fuses into one vectorised loop.
@@ -79,12 +79,12 @@ def _sincos_jvp(primals, tangents):
 
 
 def sin(x: jax.Array) -> jax.Array:
-    """``sin x`` (rad); see :func:`sincos`."""
+    """``sin x`` (rad); see ``sincos``."""
     return sincos(x)[0]
 
 
 def cos(x: jax.Array) -> jax.Array:
-    """``cos x`` (rad); see :func:`sincos`."""
+    """``cos x`` (rad); see ``sincos``."""
     return sincos(x)[1]
 
 
@@ -128,14 +128,14 @@ def _atan2_jvp(primals, tangents):
 
 
 INT_SCAN_BLOCK = 8
-"""Block length of :func:`int_cumsum` on XLA:CPU (8 and 16 ran alike at 10⁶ elements; 8 compiles smaller)."""
+"""Block length of :func:`~jaxnav.core.fastmath.int_cumsum` on the CPU (8 and 16 perform alike; 8 compiles smaller)."""
 
 
 INT_SCAN_DIRECT = 256
-"""Up to this length :func:`int_cumsum` and its blocked levels use ``jnp.cumsum``: one kernel, which
-XLA:CPU fuses into its consumer. In one ``lax.scan`` on the 2-core AMD EPYC (jax 0.10.2), per call:
-32 elements 0.07 µs against the blocked form's 0.85 µs, 125: 1.1 against 2.2, 256: 2.0 against 3.1,
-1,000: 5.5 against 4.1 (``jnp.cumsum``'s passes grow as N log N, the blocked form's as N)."""
+"""Up to this length :func:`~jaxnav.core.fastmath.int_cumsum` and its blocked levels use ``jnp.cumsum``,
+one kernel, which XLA:CPU fuses into its consumer. Inside a ``lax.scan`` it is the faster form for
+short arrays and the blocked form for long ones: ``jnp.cumsum``'s passes grow as N log N, the
+blocked form's as N, and they cross near this length."""
 
 
 def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
@@ -143,11 +143,11 @@ def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
 
     Integer sums are exact in any order (modulo 2³² for ``uint32``/``int32``), so the
     result is the same on every backend. ``jnp.cumsum`` lowers to an associative scan,
-    which XLA:CPU runs as about log₂N strided passes (6.6 ms for 2²⁰ ``int32`` on the
-    2-core benchmark machine, NumPy 0.6–3 ms). On the CPU the array is cut into rows of
-    :data:`INT_SCAN_BLOCK`; the row totals are summed (a reduction) and their exclusive
-    cumulative sum computed recursively; one integer product of each row, its offset
-    prepended, with an upper-triangular matrix of ones gives the result (0.7 ms for 10⁶).
+    which XLA:CPU runs as about log₂N strided passes, several times slower than NumPy.
+    On the CPU the array is cut into rows of :data:`~jaxnav.core.fastmath.INT_SCAN_BLOCK`;
+    the row totals are summed (a reduction) and their exclusive cumulative sum computed
+    recursively; one integer product of each row, its offset prepended, with an
+    upper-triangular matrix of ones gives the result, in a single pass over the data.
     Other backends use ``jnp.cumsum``.
 
     ``single_reader=True`` (CPU): the last level is the rows' product plus their offsets,
@@ -199,10 +199,10 @@ SMALL_CONTRACTION = 4
 
 def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
     """``a @ b`` for ``a [n, k]`` or ``[k]`` and ``b [k, m]`` or ``[k]``, written out as
-    ``Σ_i a[:, i] ⊗ b[i]`` when ``k ≤`` :data:`SMALL_CONTRACTION`.
+    ``Σ_i a[:, i] ⊗ b[i]`` when ``k ≤ SMALL_CONTRACTION`` (4).
 
     Under ``vmap`` a tiny matrix product becomes a batched ``dot_general`` that XLA:CPU
-    hands to YNNPACK or its thread pool per batch element (about a microsecond each,
+    hands to YNNPACK or its thread pool per batch element (a fixed overhead for each,
     benchmark W4; the 2 × 2 products of FastSLAM's landmark EKFs cost more than its map
     copy). Multiply-adds fuse with their neighbours into one vectorised loop. Larger
     contractions, and operands of more than two dimensions, use ``@``.
@@ -222,8 +222,8 @@ def matmul(a: jax.Array, b: jax.Array) -> jax.Array:
 
 
 def small_sum(x: jax.Array) -> jax.Array:
-    """Sum of a vector ``x [k]``, written out as additions when ``k ≤`` :data:`SMALL_CONTRACTION`
-    (a tiny reduction under ``vmap`` is a slow YNNPACK call on XLA:CPU; see :func:`matmul`)."""
+    """Sum of a vector ``x [k]``, written out as additions when ``k ≤ SMALL_CONTRACTION``
+    (a tiny reduction under ``vmap`` is a slow YNNPACK call on XLA:CPU; see :func:`~jaxnav.core.fastmath.matmul`)."""
     if x.ndim != 1 or x.shape[0] > SMALL_CONTRACTION:
         return jnp.sum(x)
     out = x[0]

@@ -135,7 +135,7 @@ class FilterSpec:
 
     @property
     def run_inputs(self) -> tuple[str, ...]:
-        """The names ``run`` gives its inputs (default: those of ``step``)."""
+        """The names ``run`` gives its inputs (by default those of ``step``)."""
         return self.inputs if self.time_inputs is None else self.time_inputs
 
 
@@ -311,8 +311,8 @@ def check_state_arrays(state: Any) -> None:
         ok = [_host_leaf_ok(np.asarray(leaf), f) for leaf, f in zip(leaves, log_domain)]
     else:
         # A large state is checked where it lives, one fused reduction per leaf (PS-SLAM's state
-        # at 100,000 tags is 1.7 GB: read to the host and scanned with NumPy it took 3.4 s a call,
-        # on the device 0.31 s); only a bad leaf is read back, to find and name its first bad value.
+        # at 100,000 tags is 1.7 GB, which takes many times longer to read to the host and scan
+        # with NumPy); only a bad leaf is read back, to find and name its first bad value.
         ok = np.asarray(_leaves_ok(leaves, log_domain))
     for (name, leaf), fine, log_field in zip(concrete, ok, log_domain):
         if not fine:
@@ -340,9 +340,9 @@ def _leaves_ok(leaves: tuple, log_domain: tuple[bool, ...]) -> jax.Array:
 
     def ok(x: jax.Array, log_field: bool) -> jax.Array:
         finite_part = jnp.where(x == -jnp.inf, 0.0, x) if log_field else x
-        # Not max|x| <= limit, which is 4x faster on the CPU but misses a NaN there (XLA:CPU's
-        # vectorised max drops NaNs); the NaN-safe forms measured (a NaN flag beside the max, an
-        # integer max of the bits) were as slow as this one: 0.31 s for 1.7 GB on 2 cores.
+        # Not max|x| <= limit, which is several times faster on the CPU but misses a NaN there
+        # (XLA:CPU's vectorised max drops NaNs); the NaN-safe alternatives (a NaN flag beside the
+        # max, an integer max of the bits) are as slow as this one.
         return jnp.all(jnp.isfinite(finite_part) & (jnp.abs(finite_part) <= MAX_MAGNITUDE))
 
     return jnp.stack([ok(x, f) for x, f in zip(leaves, log_domain)])

@@ -1,7 +1,7 @@
 """Kalman primitives: EKF and UKF predict/update, shared by every Gaussian filter.
 
-Overview
---------
+**Overview**
+
 Functions over one Gaussian ``(mean [n], cov [n, n])``; batch them with
 ``jax.vmap`` (FastSLAM runs one per particle and landmark). Models are plain
 functions — ``f(x) -> x'`` for the motion, ``h(x, aux) -> z`` for an
@@ -520,24 +520,16 @@ def ukf_update_sequential(
 # ``h(x) = C x``). Both are the reassociated Joseph form: in float32, on the W4 model with
 # P0 × 10⁴ and R × 10⁻⁴, the standard update ``P − K C P`` lost the covariance (zero
 # eigenvalues) where the Joseph form stayed positive definite and near a float64 reference
-# (``tests/core/test_kalman.py``). The choice between the forms is this measurement, on the AMD EPYC (Genoa) 2-core AVX-512 machine
-# (benchmark W4: n = 4, m = 2, T = 1000, ``jit(vmap(scan))``; best of 9 interleaved runs on a
-# shared machine, repeated runs within ±30 %; B = 1 / 100 / 1000):
-#
-#   float32  scalar form  3.9 /  20.7 / 147 ms
-#            matrix form  4.3 /  28.2 / 272 ms
-#            dynamax      6.9 /  39.2 / 577 ms  (lgssm_filter, P − K S Kᵀ)
-#   float64  scalar form  3.7 /  19.4 / 267 ms
-#            matrix form  2.0 /  22.0 / 268 ms
-#            dynamax      3.7 /  64.8 / 469 ms
-#
-# In float64 the scalar form was no faster for a batch and slower for one sequence, where the
+# (``tests/core/test_kalman.py``). The choice between the forms follows benchmark W4 (n = 4,
+# m = 2, T = 1000, ``jit(vmap(scan))``, B = 1, 100 and 1000 sequences). In float32 the scalar
+# form is faster than the matrix form and than dynamax's ``lgssm_filter``, by a margin that grows
+# with the batch. In float64 it is no faster for a batch and slower for one sequence, where the
 # step costs its count of kernel launches (about 44 against 27). The matrix form with the
-# standard update ``P − K C P`` was fastest for one sequence (1.0–1.5 ms in both dtypes) and
-# about as fast as this one for a batch, but is not kept for the reason above. Above n = 4
-# the unrolled code would grow as n³.
+# standard update ``P − K C P`` is the fastest for one sequence and about as fast as this one
+# for a batch, but is not used for the reason above. Above n = 4 the unrolled code would grow
+# as n³.
 _KF_UNROLL_MAX = 4
-_SCALAR_FORM_FLOAT64 = False  # float64 takes the matrix form (the measurement above); tests set it to check both
+_SCALAR_FORM_FLOAT64 = False  # float64 takes the matrix form (see above); tests set it to check both
 
 
 def _unrolled(n: int, m: int, *arrays: jax.Array) -> bool:

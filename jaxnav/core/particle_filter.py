@@ -31,9 +31,11 @@ import jax.numpy as jnp
 
 from jaxnav.core import resampling, weights
 
-__all__ = ["PFInfo", "extend_info", "finish_step", "keep_finite", "materialize"]
+__all__ = ["InfoT", "PFInfo", "extend_info", "finish_step", "keep_finite", "materialize"]
 
 InfoT = TypeVar("InfoT", bound="PFInfo")
+"""A filter's info type, :class:`PFInfo` or a subclass of it (what :meth:`PFInfo.replace` and
+:func:`extend_info` return)."""
 
 
 @jax.tree_util.register_dataclass
@@ -70,8 +72,8 @@ def materialize(particles: jax.Array) -> jax.Array:
     """``particles`` unchanged, written to memory once before a likelihood reads them.
 
     Without it XLA:CPU fuses the motion (noise draw, arc, wrap) into each of the likelihood's
-    ``[N, K]`` loops and evaluates it again for every observation slot. W2 (N = 10⁴, K = 8,
-    2-core AMD EPYC) and W2b (100 runs of 10³, vmapped): a step took 1.5× as long without it.
+    ``[N, K]`` loops and evaluates it again for every observation slot; in benchmarks W2
+    (N = 10⁴, K = 8) and W2b (100 runs of 10³, vmapped) a step takes markedly longer without it.
     An ``optimization_barrier``: the identity for values, gradients and ``vmap``.
     """
     return jax.lax.optimization_barrier(particles)

@@ -1,7 +1,7 @@
 """Resampling schemes on log-weights, exact at any particle count.
 
-Overview
---------
+**Overview**
+
 Every scheme has the signature ``(key, log_weights, num_samples) -> ancestors``:
 it takes *unnormalised* log-weights ``[N]`` and returns ``num_samples`` int32
 ancestor indices in ``[0, N)``, **in non-decreasing order**. All four are
@@ -17,8 +17,8 @@ unbiased: the expected number of offspring of particle ``i`` is ``M·w̄_i``
 * ``residual`` — ``⌊M w̄_i⌋`` deterministic copies, the remainder drawn
   multinomially from the residual weights.
 
-Exactness
----------
+**Exactness**
+
 A float32 cumulative sum cannot resample large sets: near its top it moves in
 steps of 6·10⁻⁸ while a particle's weight at N = 10⁶ is 10⁻⁶, so tens of
 thousands of particles of positive weight can never be drawn, others are drawn
@@ -104,7 +104,7 @@ __all__ = [
 ]
 
 SORTED_SCHEMES = ("systematic", "stratified", "multinomial", "residual")
-"""Schemes whose ancestor indices are non-decreasing (required by :func:`copy_ancestors_in_place`): all four."""
+"""Schemes whose ancestor indices are non-decreasing, as ``copy_ancestors_in_place`` requires (all four)."""
 
 TOTAL_BITS = 61
 """The integer weights of a resampling are scaled so that their total lies in ``[2^(TOTAL_BITS−1), 2^TOTAL_BITS)``
@@ -149,7 +149,7 @@ def _two_level_sum(x: jax.Array) -> jax.Array:
 
 def _power_of_two(exponent: jax.Array, dtype) -> jax.Array:
     """``2^exponent`` as a float of ``dtype`` for a scalar integer in the normal range, built from its bits
-    (exact; ``jnp.ldexp`` is three times slower than a pass over the weights)."""
+    (exact; ``jnp.ldexp`` costs more than a pass over the weights)."""
     info = jnp.finfo(dtype)
     bits_type = jnp.int32 if info.bits == 32 else jnp.int64
     biased = jnp.clip(exponent, info.minexp, info.maxexp - 1).astype(bits_type) - info.minexp + 1
@@ -465,7 +465,7 @@ def multinomial(key: jax.Array, log_weights: jax.Array, num_samples: int) -> jax
 
     The draws are the sorted i.i.d. uniforms of :func:`sorted_uniform_draws`, merged with
     the exact CDF in O(N + M) instead of the ``M × N`` Gumbel block of
-    ``jax.random.categorical`` (8.4 s at N = M = 16,000). The binary search inside a
+    ``jax.random.categorical``. The binary search inside a
     stratum takes ``⌈log₂(K_max + 1)⌉`` steps, ``K_max`` the most draws one stratum
     received (about 10 at M = 10⁸). The ancestors are sorted; their order carries no
     information.
@@ -502,6 +502,7 @@ SCHEMES: dict[str, Resampler] = {
     "stratified": stratified,
     "residual": residual,
 }
+"""The resampling schemes by name (``"multinomial"``, ``"systematic"``, ``"stratified"``, ``"residual"``)."""
 
 
 def get_resampler(name: str) -> Resampler:
@@ -779,9 +780,9 @@ def copy_ancestors_in_place(arrays: tuple, ancestors: jax.Array) -> tuple:
     XLA runs in place on the (donated) buffers: no map-sized temporary.
 
     ``jnp.take`` must write a fresh output as large as its input; for the
-    FastSLAM maps (tens of MB) that costs new, zeroed pages every step and
-    doubled the time of a W3 step at M = 4000, N = 1000. The loop costs about
-    a microsecond per copied row, so use it only for large rows. Ancestors of
+    FastSLAM maps (tens of MB) that costs new, zeroed pages every step, as much
+    as the rest of a W3 step at M = 4000, N = 1000. The loop has a fixed cost
+    per copied row, so use it only for large rows. Ancestors of
     :data:`SORTED_SCHEMES` are sorted; other schemes' are not (the result
     would then be wrong). Differentiable in ``arrays``, forward and reverse mode (a custom
     JVP: the gathered tangents), although the loop itself could not be transposed.

@@ -1,7 +1,7 @@
 """Fixed-lag ring buffers with static capacity.
 
-Overview
---------
+**Overview**
+
 A fixed-lag smoother ([W] §4.1–4.2, Kitagawa 1996) keeps the last ``L``
 states of every particle. Shifting an ``[L, ...]`` array each step costs
 O(L·size); a ring buffer writes one slot at ``head`` and advances
@@ -14,8 +14,8 @@ not yet written hold zeros (never NaN) and are excluded by ``count`` — the sam
 contract as diffrax's padded ``max_steps`` outputs: the buffer's shape is
 fixed, validity is data.
 
-Batched buffers (one ring per particle, per tag) are plain ``vmap``s of these
-functions; the lag axis is then axis 1, 2, … of the stacked arrays.
+Batched buffers (one ring per particle, per tag) are these functions under a
+plain ``vmap``; the lag axis is then axis 1, 2, … of the stacked arrays.
 """
 
 from __future__ import annotations
@@ -101,7 +101,7 @@ def ring_mean(ring: RingBuffer, last: int | None = None) -> jax.Array:
     age = (ring.head - 1 - jnp.arange(cap)) % cap
     valid = age < jnp.minimum(ring.count, window)
     n = jnp.maximum(jnp.sum(valid), 1).astype(ring.data.dtype)
-    # a select, not a product with 0/1 weights: XLA:CPU ran the weighted sum as a YNNPACK reduction
-    # 8× slower than this (PS-SLAM: 6.1 → 0.74 ms per step at 24 slots, lag 20)
+    # a select, not a product with 0/1 weights: XLA:CPU runs the weighted sum as a YNNPACK
+    # reduction, several times slower than this (it dominated PS-SLAM's step)
     mask = valid.reshape((cap,) + (1,) * (ring.data.ndim - 1))
     return jnp.sum(jnp.where(mask, ring.data, 0.0), axis=0) / n

@@ -1,7 +1,7 @@
 """Unsigned 64-bit integers as pairs of ``uint32`` words, for exact resampling arithmetic.
 
-Why this module exists
-----------------------
+**Why this module exists**
+
 JAX computes in float32 and int32 unless ``jax_enable_x64`` is set, and then has
 no 64-bit integer at all. Resampling needs more than that: at a million particles
 a particle's weight is about 1e-6 of the total, while float32 moves in steps of
@@ -171,7 +171,7 @@ def divmod_u32(a: U64, d: jax.Array) -> tuple[U64, jax.Array]:
     """``(a // d, a % d)`` for a :class:`U64` ``a`` and a ``uint32`` divisor ``1 ≤ d < 2³⁰``, exactly.
 
     The high word is divided by the hardware; the rest, ``r·2³² + lo`` with
-    ``r < d``, has a quotient below 2³², found by :func:`_divmod_small_quotient`
+    ``r < d``, has a quotient below 2³², found by ``_divmod_small_quotient``
     without any 64-bit division.
     """
     d = jnp.asarray(d).astype(_U32)

@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 MAX_MAGNITUDE = 1e6
-"""The largest magnitude a control, a noise parameter or a coordinate may have (SI units: m, s,
+"""The largest magnitude a control, a noise parameter or a coordinate may have, in SI units (m, s,
 rad, m/s). The models square and multiply these values (``α₁v²``, ``dx² + dy²``, ``J Σ Jᵀ``);
 past about 1e19 a square overflows single precision and a filter would return NaN. No indoor
 robot moves a million metres per step, so anything larger is a unit or data error."""

@@ -27,7 +27,7 @@ import jax
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
 
-__all__ = ["Cell", "Experiment", "experiments", "names", "get", "run"]
+__all__ = ["Cell", "Experiment", "experiments", "names", "get", "output_stem", "run"]
 
 
 def experiments() -> Mapping[str, Experiment]:
@@ -50,6 +50,12 @@ def get(name: str) -> Experiment:
     return known[name]
 
 
+def output_stem(out_dir: str, name: str, quick: bool = False) -> str:
+    """Where :func:`run` writes experiment ``name``: ``STEM.json``, ``STEM.md``, ``STEM.png`` and
+    ``STEM.runs.json``, ``STEM`` being ``out_dir/NAME`` (``out_dir/NAME.quick`` for the quick variant)."""
+    return os.path.join(out_dir, name + (".quick" if quick else ""))
+
+
 def run(
     name: str,
     runs: int,
@@ -61,6 +67,7 @@ def run(
     compiler_options: dict | None = None,
     workers: int | None = None,
     fresh: bool = False,
+    plot: bool = True,
 ) -> dict:
     """Run experiment ``name`` with ``runs`` seeded runs per cell; write ``NAME.json/.md/.png`` to ``out_dir``.
 
@@ -78,10 +85,14 @@ def run(
     naming it. ``workers`` chunks run at once (default
     :func:`jaxnav.experiments.sweep.default_workers`). Runs that diverged are left out of
     the summaries and counted in the result (``diverged_runs``) and its tables.
+
+    The PNG needs matplotlib: without it none is written, silently. ``plot=False`` writes
+    none; the caller can then draw it with ``get(name).plot(result, output_stem(...) + ".png")``
+    and tell its user when matplotlib is missing (as ``jaxnav experiments run`` does).
     """
     exp = get(name)
     cells = exp.cells(quick)
-    checkpoint = None if out_dir is None else os.path.join(out_dir, f"{name}.{'quick.' if quick else ''}runs.json")
+    checkpoint = None if out_dir is None else output_stem(out_dir, name, quick) + ".runs.json"
     raw = sw.sweep(
         [(c.id, c.fn, c.args) for c in cells],
         runs,
@@ -100,13 +111,14 @@ def run(
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}
     if out_dir is not None:
-        stem = os.path.join(out_dir, name + (".quick" if quick else ""))
+        stem = output_stem(out_dir, name, quick)
         with open(stem + ".json", "w") as f:
             json.dump(result, f, indent=1)
         with open(stem + ".md", "w") as f:
             f.write(exp.markdown(result) + "\n")
-        try:
-            exp.plot(result, stem + ".png")
-        except ImportError:
-            pass
+        if plot:
+            try:
+                exp.plot(result, stem + ".png")
+            except ImportError:  # matplotlib is not installed
+                pass
     return result

@@ -30,8 +30,8 @@ a cell holding the same number of runs. A run's value is a number, ``true``
 or ``false``, or a list of them for an array-valued field; a non-finite float
 (NaN, ±inf: a run with nothing to score, or one that diverged) is written as
 ``null`` and read back as NaN (standard JSON has no NaN). A checkpoint
-without ``chunk_size`` (written before it was recorded) is read when it holds
-every run asked for; adding runs to it is refused. The checkpoint is
+that does not record ``chunk_size`` is read when it holds every run asked
+for; adding runs to it is refused. The checkpoint is
 validated when it is loaded: an unreadable or truncated file, another
 structure, fields of uneven lengths, values that are not numbers or ``null``
 (strings, NaN or Infinity literals, numbers out of range), fields other than
@@ -42,7 +42,7 @@ never mixed in. After changing the code between two sweeps, start afresh
 compute something else with the same fields.
 
 Parallelism: ``workers`` chunks run at once in threads (XLA releases the
-GIL), two by default on a two-core CPU, while the cells compile one after
+GIL; by default one per core on a CPU, up to 4: :func:`default_workers`), while the cells compile one after
 the other in another thread: a cell's chunks start as soon as it is
 compiled. Results are still saved in chunk order, so the numbers and the
 checkpoint do not depend on ``workers``.
@@ -56,6 +56,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -77,20 +78,18 @@ __all__ = [
 ]
 
 FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-"""XLA options that trade run time for compile time: the CPU backend's LLVM optimisation off
-and its older fusion code generator (a quick PF-SLAM cell compiles in 1.7 s instead of 7.9 s
-and runs 4× slower on this CPU): right for the quick variants, whose runs take a fraction
-of their compilation. (The level alone compiled in 3.0 s; the quick HF experiments took 84 s
-with both options against 107 s with the level alone.)"""
+"""XLA options for the quick variants, which trade run time for compile time.
+
+The CPU backend's LLVM optimisation is off and it uses its older fusion code generator: a quick
+PF-SLAM cell compiles several times faster and runs several times slower, which is the right trade
+for runs that take a fraction of their compilation."""
 
 LIGHT_COMPILE = {"xla_backend_optimization_level": 1}
-"""XLA options that halve a full HF-RFID SLAM cell's compilation at no cost in run time: LLVM's
-optimisation level 1 instead of 3. Table 3.1's cells (R = 10, this 2-core CPU): PF-SLAM at
-100 tags/m² compiled in 6.8 s instead of 13.1 s, FastSLAM in 11.4 s instead of 14.0 s, and ran
-as fast (0.41 / 0.40 s and 0.64 / 0.70 s per run). The code rounds differently in places: on
-Table 3.1's 400 runs the scores differed in the last bit of a float32 at most, but on the other
-tables and figures 13 of 160 PF-SLAM and PS-SLAM runs took another path (a particle filter
-amplifies rounding), one fig-3.7 run from 22.5 to 18.3 mm robot error."""
+"""XLA options for the full HF-RFID SLAM cells, which halve compilation at no cost in run time.
+
+LLVM's optimisation level 1 instead of 3. The code rounds differently in places: a particle filter
+amplifies rounding, so a few runs of a table take another path than under XLA's defaults, within
+the runs' spread."""
 
 
 def cell_key(key: jax.Array, cell_id: str) -> jax.Array:
@@ -103,19 +102,57 @@ def run_key(key: jax.Array, cell_id: str, r: int) -> jax.Array:
     return jax.random.fold_in(cell_key(key, cell_id), r)
 
 
-class Progress:
-    """A progress bar over chunks on stderr (tqdm when installed, a plain line otherwise)."""
+def _clock(seconds: float) -> str:
+    """A duration as ``m:ss``, or ``h:mm:ss`` from an hour on."""
+    minutes, secs = divmod(int(max(seconds, 0.0)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
-    def __init__(self, total: int, desc: str, enabled: bool = True):
-        self.total, self.desc, self.enabled, self.done = total, desc, enabled, 0
+
+class Progress:
+    """A progress display over runs on stderr: tqdm when installed, a line of its own otherwise.
+
+    ``note`` (such as ``"compiling …"``) is printed on a line of its own before the first count,
+    so that a display sitting at 0 while XLA compiles says why. ``initial`` runs are done already
+    (resumed from a checkpoint): counted at once, and left out of the rate that the time left
+    is estimated from. Without tqdm, a terminal gets one line redrawn in place (``\\r``) with
+    the runs done, the percentage, the time elapsed and, once runs have finished here, the time
+    left; any other stream (a log file, a pipe) gets that line each time another tenth of the
+    runs is done, eleven lines at most. ``file`` is where it all goes (default: ``sys.stderr``
+    when the display is made). Nothing is printed when ``enabled`` is false.
+    """
+
+    def __init__(
+        self,
+        total: int,
+        desc: str,
+        enabled: bool = True,
+        *,
+        note: str | None = None,
+        initial: int = 0,
+        file: Any = None,
+    ):
+        self.total, self.desc, self.enabled, self.done = total, desc, enabled, initial
         self._bar = None
-        if enabled:
-            try:
-                from tqdm.auto import tqdm
-            except ImportError:
-                tqdm = None
-            if tqdm is not None:
-                self._bar = tqdm(total=total, desc=desc, unit="run", leave=False, file=sys.stderr)
+        self._file = sys.stderr if file is None else file
+        self._start, self._initial = time.monotonic(), initial
+        self._tty, self._width, self._tenths = False, 0, 0
+        if not enabled:
+            return
+        if note:
+            print(note, file=self._file, flush=True)
+        try:
+            from tqdm.auto import tqdm
+        except ImportError:
+            tqdm = None
+        if tqdm is not None:
+            self._bar = tqdm(total=total, initial=initial, desc=desc, unit="run", leave=False, file=self._file)
+            return
+        try:
+            self._tty = bool(self._file.isatty())
+        except (AttributeError, ValueError):  # no isatty, or a closed stream
+            self._tty = False
+        self._show()
 
     def update(self, n: int) -> None:
         self.done += n
@@ -124,13 +161,29 @@ class Progress:
         if self._bar is not None:
             self._bar.update(n)
         else:
-            print(f"\r{self.desc}: {self.done}/{self.total} runs", end="", file=sys.stderr, flush=True)
+            self._show()
+
+    def _show(self) -> None:
+        """Redraw the terminal's line, or print a line if another tenth of the runs is done."""
+        percent = 100 * self.done // self.total if self.total > 0 else 100
+        elapsed = time.monotonic() - self._start
+        line = f"{self.desc}: {self.done}/{self.total} runs ({percent}%), {_clock(elapsed)} elapsed"
+        counted = self.done - self._initial
+        if counted > 0 and self.done < self.total:
+            line += f", ~{_clock(elapsed / counted * (self.total - self.done))} left"
+        if self._tty:
+            padding = " " * max(self._width - len(line), 0)  # blank out the end of a longer line before
+            self._width = len(line)
+            print(f"\r{line}{padding}", end="", file=self._file, flush=True)
+        elif percent // 10 > self._tenths:
+            self._tenths = percent // 10
+            print(line, file=self._file, flush=True)
 
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
-        elif self.enabled:
-            print(file=sys.stderr)
+        elif self.enabled and self._tty:
+            print(file=self._file, flush=True)
 
 
 _KEYS = ("meta", "chunk_size", "cells")
@@ -292,7 +345,7 @@ def _check(data: Any, header: dict) -> None:
     """Refuse (``_Invalid``) a checkpoint that is not one of this sweep (module docstring)."""
     if not isinstance(data, dict):
         raise _Invalid(f"it holds {_json_type(data)}, not an object with the keys meta, chunk_size, cells")
-    missing = [k for k in _KEYS if k not in data and k != "chunk_size"]  # none: written before it was recorded
+    missing = [k for k in _KEYS if k not in data and k != "chunk_size"]  # chunk_size may be absent (module docstring)
     if missing:
         raise _Invalid(f"it lacks the key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
     extra = [k for k in data if k not in _KEYS]
@@ -379,8 +432,8 @@ def default_workers() -> int:
 
     On the CPU backend, up to 4 (at most the cores this process may use): one
     XLA:CPU execution of a vmapped filter keeps barely more than one core
-    busy, and two executions at once nearly double the throughput on two
-    cores (a Table 3.1 FastSLAM chunk: 11.6 s alone, 11.7 s for two at once).
+    busy, and two executions at once on two cores take about as long as one,
+    nearly doubling the throughput.
     On an accelerator, 1: one device runs one wide chunk at a time.
     """
     if jax.default_backend() != "cpu":
@@ -486,8 +539,8 @@ def sweep(
         stored = data.get("chunk_size") if any(done.values()) and todo else None
         if any(done.values()) and todo and "chunk_size" not in data:
             raise _Invalid(
-                "it was written before checkpoints recorded their chunk size, so runs added to it could round "
-                "differently from its own (it is read as it is when it holds every run asked for)"
+                "it does not record its chunk size, so runs added to it could round differently from its own "
+                "(it is read as it is when it holds every run asked for)"
             )
         width = _chunk_width(chunk, runs, stored)
     except _OtherWidth as err:
@@ -497,24 +550,30 @@ def sweep(
         raise _refused(path, str(err)) from None
     if todo:
         data["chunk_size"] = width
-    bar = Progress(runs * len(cells), "Monte Carlo", progress)
 
     # Every chunk still to run, in order: (cell_id, start, stop, keys of a full chunk: one compilation, runs
     # of the chunk already stored). Chunk k holds runs k·width … k·width + width − 1 whatever was stored.
     work = []
     for cell_id, _fn, _shared in cells:
-        bar.update(min(done[cell_id], runs))
         base = cell_key(key, cell_id)
         for start in range(done[cell_id] // width * width, runs, width):
             idx = np.arange(start, start + width)
             keys = jax.vmap(lambda r: jax.random.fold_in(base, r))(idx)
             work.append((cell_id, start, min(start + width, runs), keys, max(done[cell_id] - start, 0)))
     shared_of = {cell_id: (fn, shared) for cell_id, fn, shared in cells}
+    to_compile = len({cell_id for cell_id, *_ in work})
+    bar = Progress(
+        runs * len(cells),
+        "Monte Carlo",
+        progress,
+        note=_compiling_note(to_compile) if to_compile else None,
+        initial=sum(min(n, runs) for n in done.values()),
+    )
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="jaxnav-sweep")
     # The cells compile one after the other in their own thread, in the order of the chunks,
     # while the workers run the chunks of the cells already compiled: XLA:CPU's compiler keeps
-    # about 1.5 cores busy by itself, and two compilations at once took longer than one after
-    # the other (Table 3.1's four cells: 57 s against 45 s).
+    # about 1.5 cores busy by itself, and two compilations at once take longer than one after
+    # the other.
     compiler = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxnav-compile")
     try:
         compiled = {}
@@ -548,6 +607,12 @@ def sweep(
             except _Invalid as err:
                 raise _refused(path, f"field {_short(name)} of cell {_short(cell_id)} {err}") from None
     return out
+
+
+def _compiling_note(cells: int) -> str:
+    """The line printed before the progress display: the first runs wait for their compilation."""
+    what = "the runs of 1 setting" if cells == 1 else f"the runs of {cells} settings, one after the other,"
+    return f"compiling {what} with XLA (the count starts once the first is compiled)…"
 
 
 def _runs_stored(fields: dict) -> int:

@@ -1,10 +1,10 @@
 """AdaRF real UHF-RFID reads (RSSI and phase of an Impinj reader): a loader and its conversion to filter steps.
 
-Overview
---------
+**Overview**
+
 The data (dataset 1, test part, of the AdaRF repository ``dapowan/AdaRF``,
 commit ``93aa5f3``; most likely Xu et al., "AdaRF", Proc. ACM IMWUT 3(3),
-2019 — unverified, see the dataset's ``SOURCE.md``; **no licence is stated**:
+2019 (unverified); **no licence is stated**:
 internal validation only, never redistribute) are real reads of a COTS
 reader. One antenna moved along the straight line ``y = 0`` and stopped at
 50 *aperture points* ``x = 0.02 … 1.00`` m; at each it read three target
@@ -14,7 +14,7 @@ to the track, at ``(X − 0.2, Y)``, ``(X, Y)``, ``(X + 0.2, Y)`` m
 (``tag_ground_truth.csv``, derived from the authors' experiment table).
 
 This module reads the ``.csv.gz`` files unchanged from the data folder outside
-the repository (:func:`data_dir`; see :mod:`jaxnav.io._data`) and offers:
+the repository (:func:`data_dir`) and offers:
 
 1. :func:`load_experiment` — every read of the three target tags as float64
    NumPy arrays (:class:`AdaRFExperiment`), with the ground truth. The
@@ -27,8 +27,8 @@ the repository (:func:`data_dir`; see :mod:`jaxnav.io._data`) and offers:
    :mod:`jaxnav.localization.rfid_tag` takes: one filter step per aperture
    point, ``reads_per_channel`` reads of each channel per step.
 
-Conversions (the choices, stated once)
---------------------------------------
+**Conversions (the choices, stated once)**
+
 *Geometry (2D).* The antenna track is the line ``y = 0``; the tags lie at
 ``y = Y > 0``, so the antenna looks along ``+y`` (boresight yaw ``π/2``). The
 data have no heights ("any height offset between tag and antenna is folded
@@ -41,8 +41,8 @@ power model is in its free-space branch and the height value does not matter.
 :func:`~jaxnav.models.uhf_rfid.dbm_to_watt`.
 
 *Phase convention.* The reader's phase **increases** with distance,
-``φ_reader = 4πD/λ + c`` (``SOURCE.md`` checks this against the ground truth,
-and :func:`phase_residuals` does it in the tests); jaxnav's model is
+``φ_reader = 4πD/λ + c`` (checked against the ground truth by
+:func:`phase_residuals`, which the tests run); jaxnav's model is
 ``φ = −4πD/λ + θ_off`` ([A] §4.1.2). So ``φ = wrap(−φ_reader)`` in ``[0, 2π)``
 (:data:`READER_PHASE_SIGN`).
 
@@ -118,7 +118,8 @@ CHANNELS_HZ = 920.625e6 + 0.5e6 * np.arange(8)
 """The 8 channel frequencies (Hz)."""
 
 READER_PHASE_SIGN = -1.0
-"""jaxnav phase = wrap(READER_PHASE_SIGN · reader phase): the reader's phase grows with distance."""
+"""The sign in ``jaxnav phase = wrap(READER_PHASE_SIGN · reader phase)``, −1 because the reader's phase grows
+with distance."""
 
 BORESIGHT_YAW = math.pi / 2
 """The antenna looks along +y, towards the tags (rad)."""
@@ -175,12 +176,16 @@ def _is_dataset(folder: Path) -> bool:
 
 
 def data_dir(root: str | os.PathLike | None = None) -> Path:
-    """The dataset folder ``<data>/adarf-uhf-rfid-phase`` (lookup order: :mod:`jaxnav.io._data`).
+    """The dataset folder ``<data>/adarf-uhf-rfid-phase``.
+
+    ``<data>`` is ``root`` if given, else ``$JAXNAV_DATA`` if set, else ``../shared/data``
+    relative to the current directory, else relative to the repository root (when jaxnav runs
+    from a source checkout). ``root`` (or ``$JAXNAV_DATA``) may also name the dataset folder itself.
 
     Raises:
         FileNotFoundError: naming the paths tried and the environment variable.
     """
-    return find_dataset(root, DATASET, _is_dataset, "The AdaRF UHF-RFID data", _SOURCE)
+    return find_dataset(root, DATASET, _is_dataset, "AdaRF UHF-RFID dataset", _SOURCE)
 
 
 def available_experiments(root: str | os.PathLike | None = None) -> tuple[str, ...]:

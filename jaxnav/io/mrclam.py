@@ -1,7 +1,7 @@
 """UTIAS MRCLAM Dataset 7: a loader, and its discretisation into filter steps.
 
-Overview
---------
+**Overview**
+
 The UTIAS Multi-Robot Cooperative Localization and Mapping dataset (Leung,
 Halpern, Barfoot & Liu, IJRR 30(8):969–974, 2011, doi:10.1177/0278364911398404;
 cite it in anything that reports results on it) is real indoor data: iRobot
@@ -27,8 +27,8 @@ repository (:func:`data_dir`) and offers two layers:
    :class:`~jaxnav.models.landmarks.RangeBearingObs`, and the ground-truth
    pose at every step.
 
-Discretisation (the choices, stated once)
------------------------------------------
+**Discretisation (the choices, stated once)**
+
 *Clock.* A fixed grid: step ``i = 0 … T−1`` ends at ``times[i] = t₀ + (i+1)·Δt``
 with ``t₀`` the start time (default: the robot's first odometry reading) and
 ``Δt = 0.02 s`` by default (50 Hz: the default of the dataset authors' own
@@ -407,7 +407,7 @@ def load_robot(robot: int, root: str | os.PathLike | None = None) -> MRCLAMRobot
     """Load robot ``robot``'s odometry, measurements and ground truth, and the landmark map.
 
     Args:
-        robot: 1–5 (this copy of Dataset 7 holds robots 1–3).
+        robot: 1–5 (the robots of Dataset 7; the copy the tests use holds robots 1–3).
         root: data folder (see :func:`data_dir`).
 
     Raises:

@@ -1,7 +1,7 @@
 """Augmented Monte Carlo localization: random-particle injection for the kidnapped robot.
 
-Overview
---------
+**Overview**
+
 [A] §2.1.3: "Solving the kidnapped robot problem [...] in Monte Carlo
 localization requires just a slight modification [...] add some random
 particles [...]. The amount of the random particles may be [...] adaptive by

@@ -1,7 +1,7 @@
 """EKF localization with a known landmark map, [A] Alg. 1 (Thrun et al. Tab. 7.2).
 
-Overview
---------
+**Overview**
+
 The belief over the pose ``(x, y, θ)`` is one Gaussian ``(μ, Σ)``. Each step:
 
 1. predict with the motion model's mean ``g(u, x)`` ([A] Alg. 1 lines 2–3):
@@ -74,7 +74,7 @@ class EKFConfig:
 
 
 KalmanParams = lm.LandmarkMapParams
-"""EKF/UKF localization's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams`
+"""EKF/UKF localization's differentiable parameters, :class:`jaxnav.models.landmarks.LandmarkMapParams`
 (motion noise, range-bearing noise, landmarks ``[M, 2]`` in m), shared with MCL and the grid."""
 
 

@@ -1,7 +1,7 @@
 """Grid (histogram) localization with a known landmark map, [A] Alg. 2 / Thrun et al. Tab. 8.1.
 
-Overview
---------
+**Overview**
+
 The belief is a histogram over a fixed grid of ``nx × ny × nθ`` pose cells
 (Thrun et al. §8.2): the rectangle ``bounds = (x_min, x_max, y_min, y_max)``
 cut into ``nx × ny`` equal cells and the heading circle ``[-π, π)`` into
@@ -22,8 +22,8 @@ normalised *log*-belief ``log p_t(x_k)``, shape ``[nx, ny, nθ]``
 3. **estimate**: the belief's mean over the cell centres (heading on the
    circle), the MAP cell, the entropy and ``log η⁻¹ = log p(z_t | z_{1:t−1})``.
 
-Prediction as a convolution
----------------------------
+**Prediction as a convolution**
+
 Every jaxnav motion model is translation-invariant in ``(x, y)``: the move
 from a pose depends on its heading and the control, not on where it is. For
 heading bin ``k`` the model's mean move ``d_k`` and its linearised covariance
@@ -208,7 +208,7 @@ class GridConfig:
 
 
 BYTES_PER_CELL = 16
-"""Memory a cell needs during a step (float32): the belief and the prediction's working copies."""
+"""Memory a cell needs during a step (float32), for the belief and the prediction's working copies."""
 
 
 def _check_grid_size(nx: int, ny: int, ntheta: int) -> None:
@@ -234,7 +234,7 @@ def _physical_memory() -> int | None:
 
 
 GridParams = lm.LandmarkMapParams
-"""The grid filter's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams`
+"""The grid filter's differentiable parameters, :class:`jaxnav.models.landmarks.LandmarkMapParams`
 (motion noise, range-bearing noise, landmarks ``[M, 2]`` in m), shared with MCL, EKF and UKF."""
 
 
@@ -425,7 +425,7 @@ def _shifted_conv(config: GridConfig, planes: jax.Array, shifts: jax.Array, kern
 
     Zero outside the grid. The integer shift is a ``dynamic_slice`` of the
     zero-padded slice; the stencil is a sum of ``(2R + 1)²`` shifted copies,
-    which XLA fuses into one loop (on CPU ~30× faster than a grouped ``lax.conv``).
+    which XLA fuses into one loop (on CPU much faster than a grouped ``lax.conv``).
     """
     nx, ny, r = config.nx, config.ny, config.kernel_radius
     px, py = nx + 2 * r, ny + 2 * r

@@ -1,7 +1,7 @@
 """Monte Carlo localization under IR ceiling emitters, [W] Alg. 3 (§5.2).
 
-Overview
---------
+**Overview**
+
 The robot carries ``R`` upward-looking IR receivers (two in [W], one on each
 side of the robot top, Fig. 5.4) and localises against ceiling emitters of
 known positions (:class:`jaxnav.models.ir.EmitterLayout`): unique-ID LED
@@ -186,6 +186,12 @@ class IRMCLConfig:
             ESS < ``ess_threshold · N``; in (0, 1]; 1.0 (default) resamples
             at every such step, as Alg. 3 lines 16–20. A step without a
             detection leaves the weights as they are and does not resample.
+        redraw_factor: ``K``; at the first unique-ID detection the particles
+            are re-drawn from ``K·N`` candidates around the detected emitter
+            (module docstring, "Start of localization").
+        restart_when_lost: repeat that re-draw after the start at a unique-ID
+            detection that no particle can explain (not in [W]; module
+            docstring, "Heading").
     """
 
     num_particles: int = 1000

@@ -1,7 +1,7 @@
 """KLD-sampling Monte Carlo localization: an adaptive number of particles in fixed-shape arrays.
 
-Overview
---------
+**Overview**
+
 [A] §2.1.3 (ref. [9], Fox 2001, "KLD-sampling: adaptive particle filters";
 Thrun, Burgard & Fox, *Probabilistic Robotics*, Tab. 8.4) chooses the number
 of particles so that, with probability ``1 − δ``, the Kullback–Leibler

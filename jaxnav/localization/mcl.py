@@ -1,7 +1,7 @@
 """Monte Carlo localization with a known landmark map, [A] Alg. 3.
 
-Overview
---------
+**Overview**
+
 A bootstrap particle filter over poses ``(x, y, θ)``. Each step ([A] Alg. 3):
 
 1. move every particle with a draw of the motion model (line 3);
@@ -70,6 +70,7 @@ __all__ = [
     "step",
     "run",
     "move_and_weight",
+    "Weighted",
 ]
 
 _ANGLE_DIMS = (2,)
@@ -103,7 +104,7 @@ class MCLConfig:
 
 
 MCLParams = lm.LandmarkMapParams
-"""MCL's differentiable parameters: :class:`jaxnav.models.landmarks.LandmarkMapParams` (motion noise,
+"""MCL's differentiable parameters, :class:`jaxnav.models.landmarks.LandmarkMapParams` (motion noise,
 range-bearing noise, landmarks ``[M, 2]`` in m), shared with the grid, EKF and UKF filters."""
 
 

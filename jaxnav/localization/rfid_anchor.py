@@ -1,7 +1,7 @@
 """Robot localization from UHF-RFID reads of anchor tags and odometry, [A] App. F Alg. 8.
 
-Overview
---------
+**Overview**
+
 The robot carries the reader; ``G`` anchor tags sit at known positions. The
 particles are ``X = (x, y, z, φ, θ_1 … θ_G)``: the reader's position (m), the
 yaw of its antenna (rad) and the unknown phase offset of each anchor (rad).

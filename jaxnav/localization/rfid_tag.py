@@ -1,7 +1,7 @@
 """Localization of a static UHF-RFID tag from RSSI and phase reads, [A] Alg. 6 (§4.3).
 
-Overview
---------
+**Overview**
+
 A reader on a robot whose path is known reads a tag that does not move. Each
 read gives an RSSI ``y`` (W) and a phase ``φ`` (rad) at a known reader pose
 (:class:`jaxnav.models.uhf_rfid.UHFReads`). The particles are hypotheses
@@ -36,7 +36,7 @@ offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
 known height) and searches ``(x, y, θ_off)`` only; the particles keep four
 columns so that every shape is the same.
 
-Several tags: :func:`run_tags` ``vmap``s :func:`run` over a leading tag axis
+Several tags: :func:`run_tags` applies ``vmap`` to :func:`run` over a leading tag axis
 (``[A]``: "localization of more than one tags simply requires the execution
 inside a loop"; here it is one vectorised call, with each tag resampling only
 when it must).
@@ -101,7 +101,10 @@ __all__ = [
 ]
 
 WEIGHTINGS = ("combined", "rssi", "phase")
-"""Which weights Alg. 6 lines 12–14 multiply in: both (the proposal of [A]), RSSI only, phase only."""
+"""Which weights Alg. 6 lines 12–14 multiply in, by name.
+
+``"combined"`` multiplies both (the proposal of [A]), ``"rssi"`` the RSSI weight only and ``"phase"``
+the phase weight only."""
 
 _OFFSET = 3  # column of θ_off, an angle in [−π, π)
 

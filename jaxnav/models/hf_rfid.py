@@ -1,17 +1,17 @@
 """HF-RFID reader arrays and the detection model of [W] eq. 3.7.
 
-Overview
---------
+**Overview**
+
 ``B`` HF readers sit under the robot ([W] §3.1, Fig. 3.2c), reader ``b`` at
 ``offsets[b]`` in the robot frame (x forward, y left, metres). A reader
 detects a floor tag when the tag lies in its square footprint of side
 ``s = 2σ`` (60 mm in [W] ch. 3, 100–500 mm in [W] §4.4.3); the footprint
-turns with the robot. The default layout (:func:`default_reader_offsets`,
-SPEC §3) is two rows of four readers at 60 mm pitch centred on the robot.
+turns with the robot. The default layout (:func:`default_reader_offsets`)
+is two rows of four readers at 60 mm pitch centred on the robot.
 
 Detection likelihood, [W] eq. 3.7, in log form. With ``e = ʳm − ʳb`` the
 tag's position minus the detecting reader's position, both in the robot
-frame:
+frame::
 
     log w(e) = 0                          if |e_x| < σ and |e_y| < σ
     log w(e) = log β − eᵀe / (2σ²)        otherwise
@@ -28,7 +28,7 @@ FastSLAM cannot use a step likelihood; its per-particle EKF sees the
 detection as a measurement ``z = ʳb`` (the detecting reader's position in
 the robot frame) of the tag's robot-frame position ``h(x, m) = R(θ)ᵀ(m − p)``
 with the footprint replaced by the Gaussian of the same variance: a uniform
-square of side ``s`` has variance ``s²/12 = σ²/3`` per axis (SPEC §3).
+square of side ``s`` has variance ``s²/12 = σ²/3`` per axis.
 :func:`robot_frame`, :func:`world_frame` and :func:`footprint_cov` are that
 model's pieces (``jaxnav.models.observation.HF_FOOTPRINT``), with its landmark update
 and initialisation in closed form (:func:`footprint_landmark_update`,
@@ -138,8 +138,8 @@ class ReaderObservations(NamedTuple):
 def default_reader_offsets(rows: int = 2, cols: int = 4, pitch: float = 0.06) -> jax.Array:
     """``[rows·cols, 2]`` reader centres on a grid of ``pitch`` (m) centred on the robot.
 
-    Rows run along the robot's y axis, columns along x; the default is SPEC
-    §3's two rows of four at 60 mm, reader ``b = r·cols + c``.
+    Rows run along the robot's y axis, columns along x; the default is two
+    rows of four at 60 mm, reader ``b = r·cols + c``.
     """
     rows, cols = check_positive_int("rows", rows), check_positive_int("cols", cols)
     if not pitch > 0:

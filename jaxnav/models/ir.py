@@ -1,9 +1,9 @@
 """IR emitter positioning: frequency-coded IDs, emitter layouts, voltage model, belief ([W] ch. 5).
 
-Overview
---------
+**Overview**
+
 IR LEDs on the ceiling are landmarks with known positions ([W] §5.1). Each
-LED is on-off keyed (OOK) at one of the nine frequencies of [W] Table 5.1:
+LED is on-off keyed (OOK) at one of the nine frequencies of [W] Table 5.1::
 
     code            1     2     3     4     5     6     7     8     9
     frequency (Hz)  100   150   250   350   550   650   850   950   1150
@@ -20,8 +20,8 @@ LED is on-off keyed (OOK) at one of the nine frequencies of [W] Table 5.1:
 (0.25 kHz and 1.15 kHz). :func:`id_name` / :func:`parse_name` give that
 readable form.
 
-Canonical numbering
--------------------
+**Canonical numbering**
+
 The 2⁹ − 1 = 511 non-empty subsets are numbered ``0 … 510`` in order of
 (size, lexicographic order of the sorted codes): IDs 0–8 are the repeated
 IDs of codes 1–9 (``id = code − 1``), IDs 9–44 the 36 pairs
@@ -32,8 +32,8 @@ IDs are static data). Inside jitted code an ID travels as a **bitmask**
 :func:`to_mask`, :func:`from_mask` on the host, :func:`mask_to_id`,
 :func:`id_to_mask`, :func:`mask_bits` as jnp table look-ups / bit tests.
 
-Capacity and memory ([W] §5.3)
-------------------------------
+**Capacity and memory ([W] §5.3)**
+
 With ``n`` frequencies and at most ``p`` LEDs (microcontroller pins) per array
 there are ``Σ_{k=1}^{min(n,p)} C(n, k)`` IDs (:func:`capacity`): 511 for
 ``n = p = 9``, 768,211 for ``n = 30``, ``p = 6``. With an ``L_r × W_r``
@@ -43,8 +43,8 @@ entries with 9 repeated IDs, against ``(L_r−1)(W_r−1) + L_r·W_r`` if every
 emitter had a unique ID (:func:`memory_size`; 239,010 vs 479,001 for
 600 × 400).
 
-Layouts
--------
+**Layouts**
+
 :class:`EmitterLayout` holds ``positions [E, 2]`` (m, world frame, on the
 ceiling), ``masks [E]`` (ID bitmasks), ``unique [E]`` and ``ids [E]``
 (canonical IDs). Builders: :func:`make_layout` (validated, from code sets),
@@ -60,15 +60,15 @@ builders keep three rules, under which such a set is never an ID of the
 layout, so the receiver reports no detection
 (:func:`jaxnav.sim.ir_receiver.decode`), never a wrong emitter:
 
-(i) all unique arrays of a layout have the same number of codes ``k ≥ 2``
-    (a union with another emitter's codes has more than ``k`` codes or is the
-    array's own set; one cancelled code leaves fewer than ``k``);
-(ii) two emitters closer than ``conflict_radius`` share no code if
-    ``k = 2`` and at most one if ``k ≥ 3`` (a cancelled shared code then
-    leaves ``k − 1`` codes: for ``k = 2`` a single code, a repeated ID;
-    :func:`code_conflicts` lists violations);
-(iii) repeated emitters are at least ``conflict_radius`` apart (two
-    singletons in range together would read as a pair).
+* (i) all unique arrays of a layout have the same number of codes ``k ≥ 2``
+  (a union with another emitter's codes has more than ``k`` codes or is the
+  array's own set; one cancelled code leaves fewer than ``k``);
+* (ii) two emitters closer than ``conflict_radius`` share no code if
+  ``k = 2`` and at most one if ``k ≥ 3`` (a cancelled shared code then
+  leaves ``k − 1`` codes: for ``k = 2`` a single code, a repeated ID;
+  :func:`code_conflicts` lists violations);
+* (iii) repeated emitters are at least ``conflict_radius`` apart (two
+  singletons in range together would read as a pair).
 
 ``conflict_radius`` defaults to 0.70 m. The decoder counts a code as absent
 only below half the strongest code (its relative guard), so a cancellation
@@ -78,8 +78,8 @@ are in range together only within 2 × 0.283 m. The price is capacity: one
 lattice holds at most ``C(9, 4) = 126`` unique arrays instead of [W]'s 502
 sets of ≥ 2 codes.
 
-Observation model
------------------
+**Observation model**
+
 [W] eq. 5.3, the mean receiver voltage at horizontal receiver–emitter
 distance ``e_d`` (mm) for a 1.2 m emitter–receiver height,
 
@@ -190,10 +190,10 @@ def _mask_of(codes: Iterable[int]) -> int:
 
 
 ID_TO_MASK: np.ndarray = np.array([_mask_of(s) for s in _ALL_SETS], dtype=np.int32)
-"""``[511]`` int32: bitmask of canonical ID ``i``."""
+"""``[511]`` int32, the bitmask of canonical ID ``i``."""
 
 MASK_TO_ID: np.ndarray = np.full(2**NUM_CODES, -1, dtype=np.int32)
-"""``[512]`` int32: canonical ID of bitmask ``m`` (−1 for the empty mask 0)."""
+"""``[512]`` int32, the canonical ID of bitmask ``m`` (−1 for the empty mask 0)."""
 MASK_TO_ID[ID_TO_MASK] = np.arange(NUM_IDS, dtype=np.int32)
 
 
@@ -658,7 +658,7 @@ def min_separation(layout: EmitterLayout) -> float:
 # --------------------------------------------------------------------------------------
 
 DEFAULT_RECEIVER_OFFSETS = np.array([[0.0, 0.10], [0.0, -0.10]], dtype=np.float32)
-"""``[2, 2]`` receiver positions in the robot frame (m; x forward, y left): one on each
+"""``[2, 2]`` receiver positions in the robot frame (m; x forward, y left), one on each
 side of the robot top ([W] §5.1, Fig. 5.4). [W] gives no distances; ±0.10 m is our choice."""
 
 
@@ -689,7 +689,7 @@ class VoltageModel(NamedTuple):
 
 
 MAX_VOLTAGE = 100.0
-"""The largest level a receiver may report (V): [W]'s receiver runs on an 8 V rail (Fig. 5.5), so a
+"""The largest level a receiver may report (V). [W]'s receiver runs on an 8 V rail (Fig. 5.5), so a
 level beyond ±100 V is a unit or data error, not a reading."""
 
 W_VOLTAGE_MODEL = VoltageModel(c2=-3.27e-5, c1=2.855e-3, c0=1.81997)
@@ -783,7 +783,7 @@ def fit_voltage_model(
 # --------------------------------------------------------------------------------------
 
 BELIEF_SIGMA = 0.030
-"""σ of [W] eq. 5.1: "σ is set at 30" (mm), here in m."""
+"""σ of [W] eq. 5.1 ("σ is set at 30", in mm), here in m."""
 
 
 def log_belief(emitter_positions: jax.Array, position: jax.Array, sigma: jax.Array = BELIEF_SIGMA) -> jax.Array:

@@ -1,7 +1,7 @@
 """Range-bearing observations of point landmarks.
 
-Overview
---------
+**Overview**
+
 A robot at pose ``x = (x, y, θ)`` observes landmark ``m = (m_x, m_y)`` as
 
     r = √((m_x − x)² + (m_y − y)²),   φ = atan2(m_y − y, m_x − x) − θ
@@ -102,8 +102,8 @@ def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, ja
     usable = (obs.ids >= 0) & (obs.ids < m) & usable_measurements(obs.z)
     valid = mask & usable
     # mode="clip" clamps an id outside the map (such a slot is invalid, its position unused); the
-    # default "fill" adds a bounds select that XLA:CPU fuses into every [N, K] consumer (W2,
-    # N = 10⁴: the likelihood 1.6 ms against 0.5 ms).
+    # default "fill" adds a bounds select that XLA:CPU fuses into every [N, K] consumer, where it
+    # would cost more than the rest of the likelihood.
     positions = jnp.take(landmark_map, obs.ids, axis=0, mode="clip")
     return positions, valid, jnp.sum(mask & ~usable).astype(jnp.int32)
 
@@ -141,8 +141,8 @@ def log_likelihood(
     sd = params.sd
     # An invalid slot is switched off by per-slot constants (sd = ∞, log-normaliser 0: its term is
     # exactly 0), not by a select on each particle–slot term: XLA:CPU fuses the [K] constants
-    # into the [N, K] loop, where a select on the [N, K] terms cost about as much as the rest of
-    # the likelihood (W2, N = 10⁴: 1.0 ms against 0.55 ms). Valid slots compute the same expression.
+    # into the [N, K] loop, where a select on the [N, K] terms would cost about as much as the rest
+    # of the likelihood. Valid slots compute the same expression.
     inf = jnp.asarray(jnp.inf, resid_r.dtype)
     sd_r, sd_b = jnp.where(valid, sd[0], inf), jnp.where(valid, sd[1], inf)
     log_norm = jnp.where(valid, -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi), 0.0)

@@ -1,11 +1,11 @@
 """Motion models: velocity (unicycle), odometry and omnidirectional.
 
-Overview
---------
+**Overview**
+
 Each model offers
 
 * ``mean(pose, control, params) -> pose`` — the deterministic motion
-  ``g(u_t, x_{t-1})``; smooth, so the EKF of the classical issue linearises it
+  ``g(u_t, x_{t-1})``; smooth, so the EKF linearises it
   with ``jax.jacfwd`` instead of hand-written Jacobians;
 * ``sample(key, poses, control, params) -> poses`` — one noisy draw per pose,
   vectorised over any leading axes of ``poses [..., 3]`` (one call moves all
@@ -19,14 +19,14 @@ Poses are ``(x, y, θ)`` in metres and radians, θ wrapped to ``[-π, π)``.
 Controls carry their own time step, so logs with irregular Δt need no extra
 argument:
 
-==================  ==========================================  ====================
-model               control ``u``                               reference
-==================  ==========================================  ====================
-``velocity``        ``(v [m/s], ω [rad/s], Δt [s])``            Thrun et al. Tab. 5.3
-``odometry``        ``(x̄, ȳ, θ̄, x̄', ȳ', θ̄')`` odometry poses   Thrun et al. Tab. 5.6
-``omni``            ``(v_x, v_y, ω, Δt)``, world frame           [W] eq. 3.6
-``omni_body``       ``(v_x, v_y, ω, Δt)``, robot frame            [W] eq. 3.6, rotated
-==================  ==========================================  ====================
+==================  ========================================  =====================
+model               control ``u``                             reference
+==================  ========================================  =====================
+``velocity``        ``(v [m/s], ω [rad/s], Δt [s])``          Thrun et al. Tab. 5.3
+``odometry``        ``(x̄, ȳ, θ̄, x̄', ȳ', θ̄')`` odometry poses  Thrun et al. Tab. 5.6
+``omni``            ``(v_x, v_y, ω, Δt)``, world frame        [W] eq. 3.6
+``omni_body``       ``(v_x, v_y, ω, Δt)``, robot frame        [W] eq. 3.6, rotated
+==================  ========================================  =====================
 
 Robots localised in 3-D, with poses ``(x, y, z, φ)``, move by an odometry increment
 ``dX = (dx, dy, dz, dφ)`` plus Gaussian noise ([A] App. F Alg. 8): :func:`increment_sample`
@@ -249,8 +249,8 @@ def odometry_control(previous_odometry_pose: jax.Array, odometry_pose: jax.Array
 
 def _wrap_heading(pose: jax.Array) -> jax.Array:
     """``pose`` with θ wrapped to ``[-π, π)``, built by concatenation: under ``vmap`` XLA:CPU turns
-    ``.at[..., 2].set`` into a scatter that copied the whole particle array (measured 28 ns/element),
-    and even unbatched it cost the W2 motion 0.2 ms of 0.7 ms at N = 10⁴ (2-core AMD EPYC)."""
+    ``.at[..., 2].set`` into a scatter that copies the whole particle array, and even unbatched it
+    takes a large share of the W2 motion step."""
     return jnp.concatenate([pose[..., :2], wrap_angle(pose[..., 2:3])], axis=-1)
 
 
@@ -297,7 +297,7 @@ def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, param
 
 
 INCREMENT_FRAMES = ("world", "body")
-"""Frames of :func:`increment_sample`'s ``(dx, dy)``: as given ([A]'s ``X + dX``), or in the robot frame."""
+"""Frames of :func:`increment_sample`'s ``(dx, dy)``, as given ([A]'s ``X + dX``) or in the robot frame."""
 
 
 def increment_mean(poses: jax.Array, increment: jax.Array, frame: str = "world") -> jax.Array:
@@ -434,6 +434,8 @@ MODELS: dict[str, MotionModel] = {
         "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov, 3
     ),
 }
+"""The motion models by name (``"velocity"``, ``"odometry"``, ``"omni"``, ``"omni_body"``; table in the
+module docstring)."""
 
 
 def get_motion_model(name: str) -> MotionModel:

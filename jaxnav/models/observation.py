@@ -70,6 +70,8 @@ def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
 RANGE_BEARING = ObservationModel(
     "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
 )
+"""Point landmarks seen by range and bearing (:mod:`jaxnav.models.landmarks`), ``z = (r, φ)`` with the
+bearing circular; sensor params :class:`jaxnav.models.landmarks.RangeBearingNoise`."""
 
 
 HF_FOOTPRINT = ObservationModel(
@@ -85,7 +87,7 @@ HF_FOOTPRINT = ObservationModel(
     hf_rfid.footprint_landmark_initialise,
     pose_free_covariance=True,
 )
-"""The HF-RFID detection as a Gaussian measurement (SPEC §3, [W] §3.2): ``z`` = the detecting reader's
+"""The HF-RFID detection as a Gaussian measurement ([W] §3.2), ``z`` = the detecting reader's
 position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
 Sensor params: :class:`jaxnav.models.hf_rfid.HFReaderParams`; observations:
 :func:`jaxnav.models.hf_rfid.landmark_observations` of the detections. Its landmark update and
@@ -93,3 +95,4 @@ initialisation are in closed form (:func:`jaxnav.models.hf_rfid.footprint_landma
 the pose, so FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``)."""
 
 OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
+"""The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``)."""

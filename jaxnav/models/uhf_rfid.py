@@ -1,7 +1,7 @@
 """UHF-RFID sensor models: RSSI and phase of a passive tag seen by a monostatic reader ([A] ch. 4).
 
-Overview
---------
+**Overview**
+
 A reader at ``g = (x_g, y_g, z_g, ψ_g)`` (m, m, m, rad: position and the yaw of
 its antenna boresight, [A] §4.3.1) interrogates a passive tag at
 ``X = (x, y, z)`` (m). Ground is the plane ``z = 0``, so the heights of the
@@ -11,15 +11,17 @@ Every function here is pure, broadcasts over leading axes, and is
 differentiable in its continuous arguments (tag position, ``k``, ``θ``, ``λ``,
 ``σ``, phase offset); :func:`jax.grad` never returns NaN for valid inputs.
 
-Received power ([A] §4.1.2, App. A, monostatic)
-------------------------------------------------
+**Received power ([A] §4.1.2, App. A, monostatic)**
+
+::
+
     y = P_T · η_T · G_R² · G_T² · L² · |h|⁴,     |h|² ~ Gamma(k, θ)  (shape k, scale θ)
 
 * ``P_T`` transmit power (W), ``η_T`` tag scattering efficiency, ``G_T`` tag
   antenna gain (linear), ``G_R`` the reader antenna gain towards the tag
   (:func:`antenna_gain`).
 * Two-ray path loss ([A] §4.1.2 and App. A; :func:`two_ray_path_loss`), with
-  ``D`` the reader–tag distance (m) and breakpoint ``D_c = 4π h_R h_T / λ``:
+  ``D`` the reader–tag distance (m) and breakpoint ``D_c = 4π h_R h_T / λ``::
 
       L = (λ / (4π D))²        if D < D_c
       L = (h_R h_T / D²)²      if D ≥ D_c
@@ -31,8 +33,8 @@ Received power ([A] §4.1.2, App. A, monostatic)
   part, so ``y = a·(|h|²)²`` ([A] §4.3.1) and ``E[y] = a·k(k+1)θ²``
   (:func:`mean_power`).
 
-Reader antenna gain ([A] §4.3.1, Fig. 4.2)
-------------------------------------------
+**Reader antenna gain ([A] §4.3.1, Fig. 4.2)**
+
 The antenna vector is horizontal with yaw ``ψ``. [A] gives the gain at the
 tag's direction angles ``(φ_T1, φ_T2, φ_T3)``: ``G_0`` when all three lie in
 ``[φ − φ_s, φ + φ_s]``, ``G_BLL`` when one lies outside
@@ -43,7 +45,7 @@ the direction angles of the reader→tag vector against the axes of the
 **antenna frame** (boresight, horizontal-left, up), compared with those of the
 boresight ``(0, π/2, π/2)``, so that the pattern turns with the antenna. In
 that frame the first direction angle is the off-boresight angle ``γ`` and the
-other two deviate from ``π/2`` by at most ``γ``, so the rule is exactly
+other two deviate from ``π/2`` by at most ``γ``, so the rule is exactly::
 
     G_R = G_0      if γ ≤ φ_s
     G_R = G_SLL    if φ_s < γ ≤ 2φ_s
@@ -55,16 +57,18 @@ piecewise constant, so its gradient with respect to positions is zero (never
 NaN). For gradient work, ``softness=τ`` (rad) replaces each step by a logistic
 ``σ((edge − γ)/τ)``; ``τ → 0`` recovers the thesis's model.
 
-RSSI likelihood ([A] §4.3.1, App. C)
--------------------------------------
-With ``g = |h|² ~ Gamma(k, θ)`` and ``y = a·g²`` the density of ``y`` is
+**RSSI likelihood ([A] §4.3.1, App. C)**
+
+With ``g = |h|² ~ Gamma(k, θ)`` and ``y = a·g²`` the density of ``y`` is::
 
     W_RSSI = f(y) = 1 / (2 θ^k Γ(k) a^{k/2}) · y^{(k−2)/2} · exp(−√(y/a) / θ),
 
 computed in log form by :func:`log_w_rssi` (``gammaln``, no raw product).
 
-Phase ([A] §4.1.2) and the phase weight ([A] §4.3.2)
------------------------------------------------------
+**Phase ([A] §4.1.2) and the phase weight ([A] §4.3.2)**
+
+::
+
     φ = (−4π D / λ + θ_off) mod 2π  ∈ [0, 2π)          (:func:`phase`)
 
 ``θ_off`` is the constant offset of cables and tag; [A]'s multipath term
@@ -72,7 +76,7 @@ Phase ([A] §4.1.2) and the phase weight ([A] §4.3.2)
 uses [A]'s distance metric ``Δ`` (Alg. of §4.3.2, lines 1–4): phases are
 turned into radii on circles of circumference ``λ/2`` and ``Δ`` is the distance
 to the nearest peak, ``Δ = min(|ρ_φ − ρ_d|, λ/2 − |ρ_φ − ρ_d|) ∈ [0, λ/4]``.
-That equals
+That equals::
 
     Δ = (λ / 4π) · |wrap(φ_meas − φ_pred)|     (m),  wrap to [−π, π)
 
@@ -89,17 +93,17 @@ in log form).
 The estimation of ``(k, θ)`` from an anchor tag ([A] §4.3.1, App. D–E) is
 :mod:`jaxnav.models.uhf_calibration`.
 
-Units and helpers
------------------
+**Units and helpers**
+
 SI everywhere: m, rad, W; gains are linear (dimensionless). Readers report
 dBm and antenna sheets dBi: :func:`dbm_to_watt`, :func:`watt_to_dbm`,
 :func:`db_to_linear`, :func:`linear_to_db`. :func:`wrap_phase` maps a reader's
 ``[−π, π)`` phase to ``[0, 2π)``.
 
-Where the thesis is ambiguous, and what we chose
-------------------------------------------------
+**Where the thesis is ambiguous, and what we chose**
+
 * **Wavelength.** [A] §5.2 states λ = 0.173 m; a European UHF reader (866 MHz)
-  has λ = c/f ≈ 0.346 m, so 0.173 m is likely λ/2 (SPEC §4). λ is a parameter
+  has λ = c/f ≈ 0.346 m, so 0.173 m is likely λ/2. λ is a parameter
   of every function (per read, to allow channel hopping); the default
   :data:`DEFAULT_WAVELENGTH` is the thesis's 0.173 m (:data:`A_WAVELENGTH`) so
   that reproductions match [A]; real 866 MHz data should pass
@@ -201,7 +205,7 @@ WAVELENGTH_866MHZ = SPEED_OF_LIGHT / 866e6
 """λ of a European UHF reader at 866 MHz, ≈ 0.3462 m."""
 
 DEFAULT_WAVELENGTH = A_WAVELENGTH
-"""Default λ (m): the thesis's value, for reproductions of [A]."""
+"""Default λ (m), the thesis's value, for reproductions of [A]."""
 
 DEFAULT_PHASE_SIGMA_FRACTION = 0.1
 """σ_phase = 0.1·λ (m), inside [A] §4.3.2's 0.05λ–0.2λ."""
@@ -265,7 +269,7 @@ class GammaParams(NamedTuple):
 
 
 DEFAULT_GAMMA = GammaParams(k=2.0, theta=0.5)
-"""Used until enough anchor reads exist: unit mean fading power kθ = 1 (our choice)."""
+"""Fading parameters used until enough anchor reads exist, with unit mean fading power kθ = 1 (our choice)."""
 
 
 class UHFReads(NamedTuple):
@@ -365,7 +369,7 @@ def valid_values(x: Any, mask: Any) -> np.ndarray | None:
 
 
 MAX_RSSI_W = 1.0
-"""The largest received power an RSSI may report (W, i.e. 30 dBm): a UHF reader transmits at most
+"""The largest received power an RSSI may report, in W (1 W = 30 dBm). A UHF reader transmits at most
 4 W EIRP, and a backscattered read is many orders of magnitude weaker."""
 
 
@@ -906,7 +910,7 @@ def read_log_terms(
     the particles with scalar operands, which XLA:CPU runs several times faster inside a scan
     than one ``[M, J]`` broadcast whose read operands are sliced from the scanned arrays.
     Per particle and read it costs one ``log`` (of ``D²``), one ``exp`` and one ``sqrt``:
-    ``log a`` is assembled in the log domain (:func:`_log_power_scale_from_geometry`), the
+    ``log a`` is assembled in the log domain (``_log_power_scale_from_geometry``), the
     stepped antenna's lobe test compares ``d·b`` with ``cos φ_s·|d|`` instead of computing the
     angle, and ``D²`` is summed component by component (a reduction over a trailing axis of 3
     is slow on XLA:CPU).

@@ -1,7 +1,7 @@
 """IR photodiode receiver simulator with FFT decoding ([W] §5.1–5.2, Figs. 5.4–5.7).
 
-Overview
---------
+**Overview**
+
 Two receivers on the robot top (one per side, robot-frame ``offsets``,
 default (0, ±0.10) m; [W] Fig. 5.4 gives no distances) look up at the
 ceiling emitters of an :class:`~jaxnav.models.ir.EmitterLayout`. Every LED
@@ -9,8 +9,8 @@ is on-off keyed with a square wave of duty ``D`` (default ½) at its code's
 frequency ([W] Table 5.1); a unique-ID array drives one LED per code of its
 set, all co-located, each with its own random phase.
 
-Physical model (per LED, receiver ``r``, emitter ``e``)
---------------------------------------------------------
+.. rubric:: Physical model (per LED, receiver ``r``, emitter ``e``)
+
 LED facing down, photodiode facing up, vertical distance ``h`` (default
 1.2 m, [W] §5.4), horizontal distance ``e_d``, ``d² = h² + e_d²``. A
 Lambertian LED of order ``m`` and optical power ``P`` has radiant intensity
@@ -54,8 +54,8 @@ through ``h^{m+1}/d^{m+3}``: at 1.1 and 1.3 m the level right under an
 emitter is 2.08 and 1.68 V against 1.90 V at 1.2 m, which is what degrades
 eq. 5.3 in [W] Table 5.3.
 
-Sampling and decoding ([W] §5.2, Fig. 5.6)
--------------------------------------------
+**Sampling and decoding ([W] §5.2, Fig. 5.6)**
+
 ``fs`` (default 10 kHz) for a window of ``T`` seconds (default 20 ms,
 ``N = fs·T = 200`` samples). ``T`` must be a multiple of 20 ms: every code
 frequency is a multiple of 50 Hz, so each falls exactly on an FFT bin (bin
@@ -103,8 +103,8 @@ the layouts built by :mod:`jaxnav.models.ir` (its "Decodability" rules), so
 rule 4 drops it. The reported voltage is ``V`` of the mean ``â`` over the
 present codes.
 
-Interface
----------
+**Interface**
+
 ``config`` (:class:`ReceiverConfig`, static, hashable): ``fs_hz``,
 ``window_s``. ``params`` (:class:`ReceiverParams`, differentiable pytree):
 height, LED power, Lambertian order, gain, front end, noise, offsets, duty,
@@ -543,7 +543,7 @@ def decode(
         layout: if given, a set of codes that is no emitter's ID is not a detection.
 
     Returns:
-        :class:`IRDetection` (``mask``, ``valid``, ``voltage``, ``amplitude``).
+        :class:`~jaxnav.models.ir.IRDetection` (``mask``, ``valid``, ``voltage``, ``amplitude``).
     """
     _check_waveform(waveform, config)
     validate_params(params)

@@ -1,7 +1,7 @@
 """Simulated drives under an IR emitter ceiling: true path, odometry and receiver detections ([W] §5.4).
 
-Overview
---------
+**Overview**
+
 The data of the IR experiments of [W] §5.4 in simulation:
 
 1. **Path** (host-side, :func:`polyline_path`): the robot drives a polyline
@@ -165,8 +165,9 @@ class OdometryError(NamedTuple):
 DEFAULT_ODOMETRY_ERROR = OdometryError(
     sd=np.array([0.03, 0.03, 0.03], np.float32), scale=np.array([0.04, -0.04, 0.0], np.float32)
 )
-"""Our choice ([W] gives no odometry figures): 0.03 m/s, 0.03 m/s, 0.03 rad/s white noise, +4 % / −4 %
-scale on v_x / v_y. Dead reckoning from the known start then drifts by ~0.1 m on average (~0.2 m at
+"""Odometry error of the simulated IR drives, our choice as [W] gives no odometry figures.
+
+0.03 m/s, 0.03 m/s, 0.03 rad/s white noise, +4 % / −4 % scale on v_x / v_y. Dead reckoning from the known start then drifts by ~0.1 m on average (~0.2 m at
 worst) over a 60 s lap of :data:`EXPERIMENT_WAYPOINTS` at 0.2 m/s, the size of [W]'s "odometry only"
 row of Table 5.2 (108 mm mean, 189 mm max)."""
 

@@ -2,11 +2,11 @@
 
 The commanded trajectories (rectangle, random) are :mod:`jaxnav.sim.trajectories`.
 
-Overview
---------
+**Overview**
+
 A floor carpet holds passive HF tags on a square lattice of pitch ``p``
 ([W] §3.1, Fig. 3.2): 100 tags/m² (p = 0.10 m), 16 tags/m² (0.25 m) or
-4 tags/m² (0.50 m, [W] §4.4). Tag ``(ix, iy)`` sits at
+4 tags/m² (0.50 m, [W] §4.4). Tag ``(ix, iy)`` sits at::
 
     m = origin + p·(ix, iy) + j,     |j_x|, |j_y| ≤ J < p/2
 
@@ -17,8 +17,8 @@ are installed with unavoidable errors", [W] §3.1). Its unique ID is
 with no leaves, so a :class:`TagCarpet` ``(layout, jitter)`` can be passed to
 ``jax.jit`` and retraces only when the layout changes.
 
-Detection by lattice arithmetic
--------------------------------
+**Detection by lattice arithmetic**
+
 ``B`` readers under the robot (:mod:`jaxnav.models.hf_rfid`) each see a square
 of half-width σ around their centre, turning with the robot. Reader ``b``
 detects tag ``n`` iff ``|e_x| < σ`` and ``|e_y| < σ`` (strict, [W] eq. 3.7's
@@ -49,8 +49,8 @@ wrap to the last row). :func:`detection_capacity` is a rigorous upper bound
 on detections per step (see its docstring); it is the default ``K`` and a
 smaller ``K`` is refused, so no detection is ever dropped.
 
-Simulation protocol
--------------------
+**Simulation protocol**
+
 Controls are rows ``(v_x, v_y, ω, Δt)`` in the world frame, the ``omni``
 model of [W] eq. 3.6 (:mod:`jaxnav.models.motion`). At step ``t`` the true
 robot moves exactly with ``controls[t]`` (so a rectangle is driven exactly and
@@ -64,8 +64,8 @@ Kidnapping ([W] §3.4.3): at the step of a :class:`Kidnap` the robot is
 teleported (no motion) and the odometry row reports zero velocity (Δt kept),
 so the filter gets no motion information.
 
-Smooth relaxation
------------------
+**Smooth relaxation**
+
 For gradient work the footprint indicator is replaced by
 ``Π_axes s((σ − e)/τ)·s((σ + e)/τ)`` (``s`` the logistic function), which
 tends to the indicator as τ → 0 (:func:`jaxnav.models.hf_rfid.soft_inside`), and a run's detections
@@ -120,7 +120,7 @@ __all__ = [
 ]
 
 DENSITY_PITCH = {100: 0.10, 16: 0.25, 4: 0.50}
-"""The carpets of [W]: tags/m² → lattice pitch (m)."""
+"""The carpets of [W], tags/m² → lattice pitch (m)."""
 
 _SLACK = 1e-3
 """Rounding slack of the candidate window, as a fraction of the pitch."""
@@ -691,8 +691,9 @@ def kidnapping_scenario(
     Fractions count steps of a lap. ``run.kidnapped`` marks the kidnap step.
 
     Args:
-        start: lower-left corner (m); default the carpet origin + (0.25, 0.25).
-        Others as in :func:`jaxnav.sim.trajectories.rectangle_controls` and :func:`simulate`.
+        start: lower-left corner (m); default the carpet origin + (0.25, 0.25). The other
+            arguments are as in :func:`jaxnav.sim.trajectories.rectangle_controls` and
+            :func:`simulate`.
     """
     if not 0.0 <= float(kidnap_to) < float(kidnap_from) <= 1.0:
         raise ValueError(

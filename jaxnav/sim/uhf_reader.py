@@ -1,7 +1,7 @@
 """Simulated UHF-RFID reader: RSSI and phase reads of passive tags under light and strong multipath ([A] §4.1.2, §5.2).
 
-Overview
---------
+**Overview**
+
 A reader antenna on a robot moves along a known path of poses
 ``r_t = (x, y, z, ψ)`` (m, m, m, rad; ``ψ`` the yaw of the boresight) and
 reads ``G`` static tags at ``p_g = (x, y, z)`` (m), ``J`` times per step. The
@@ -15,8 +15,8 @@ with the two-ray ``L``, phase ``φ = −4πD/λ + θ_off``); its functions
 :func:`~jaxnav.models.uhf_rfid.phase`,
 :func:`~jaxnav.models.uhf_rfid.antenna_gain`) are used here, not re-derived.
 
-Equations implemented (per tag ``p``, reader pose ``r``, wavelength ``λ``, read ``j``)
-------------------------------------------------------------------------------------------
+.. rubric:: Equations implemented (per tag ``p``, reader pose ``r``, wavelength ``λ``, read ``j``)
+
 Let ``D = |p − r_xyz|`` and ``a = P_T η_T G_R(p − r)² G_T² L(D, h_R, h_T, λ)²``
 (:func:`~jaxnav.models.uhf_rfid.power_scale`: the deterministic part of
 [A] §4.1.2). Wall reflections use the **image method**: the room is the box
@@ -30,7 +30,7 @@ across the plane ``x_a = c`` maps ``x_a ↦ 2c − x_a``); its coefficient is
 5 first-order images, ``order = 2`` adds the 12 distinct second-order ones
 (two reflections across different walls; ``x⁻x⁺`` and ``x⁺x⁻`` differ, two
 perpendicular walls in either order give one image). The **composite one-way
-channel relative to the direct ray** is
+channel relative to the direct ray** is::
 
     h_mp = 1 + Σ_i Γ_i · √(G_R(p_i − r) / G_R(p − r)) · (D / d_i) · exp(−j 2π (d_i − D) / λ)
 
@@ -39,7 +39,7 @@ its image) / path length, phase −2π·path/λ, all relative to the direct ray,
 whose free-space amplitude is ``√G_R · λ/(4πD)``; the tag gain ``G_T`` is
 taken isotropic, the same for every ray). With no walls (all ``Γ_w = 0``)
 ``h_mp = 1`` exactly. By reciprocity the monostatic round-trip channel is the
-square of the one-way channel, so ``|h_mp|`` enters like [A]'s ``|h|``:
+square of the one-way channel, so ``|h_mp|`` enters like [A]'s ``|h|``::
 
     y_j = a · |h_mp|⁴ · g_j²,            g_j = |h_f|² ~ Gamma(k, θ),  k θ = 1      (RSSI, W)
     φ_j = (−4πD/λ + 2·arg h_mp + θ_off + ε_j)  mod 2π,   ε_j ~ N(0, σ_φ²)            (phase, rad)
@@ -71,16 +71,16 @@ Keys: tag ``g`` with id ``tag_ids[g]`` (default ``g``) and step ``t`` draw from
 ``(k_fade, k_phase, k_read)``. A tag's reads therefore depend only on its own
 id, position and offset, never on the other tags or their order.
 
-Multipath presets (all numbers **ours**; [A] gives none)
---------------------------------------------------------
+.. rubric:: Multipath presets (all numbers **ours**; [A] gives none)
+
 * ``"light"`` (:data:`LIGHT_MULTIPATH`): no walls (``Γ = 0``); fading
   ``k = 20, θ = 0.05`` (``kθ = 1``, RSSI spread ≈ 1.9 dB); phase noise
   ``σ_φ = 3°``.
 * ``"strong"`` (:data:`STRONG_MULTIPATH`): the room :data:`DEFAULT_ROOM`
   ``[−1, 3] × [−1.5, 3.5] × [0, 2.8]`` m around [A]'s 2 × 3 × 2 m search box
   :data:`SEARCH_BOX_A` (0.5–1.5 m of clearance, a 2.8 m ceiling) with
-  ``Γ = −0.6`` on the four walls (between concrete, |Γ| ≈ 0.3–0.5, and
-  metal shelving, |Γ| → 1; the sign is the phase inversion of a horizontally
+  ``Γ = −0.6`` on the four walls (between concrete, ``|Γ| ≈ 0.3–0.5``, and
+  metal shelving, ``|Γ| → 1``; the sign is the phase inversion of a horizontally
   polarised reflection) and ``Γ = −0.4`` on the ceiling, second-order images; a smaller-``k`` (stronger)
   diffuse fading ``k = 8, θ = 0.125``; phase noise ``σ_φ = 10°``.
 * Reader sensitivity :data:`DEFAULT_SENSITIVITY` = −80 dBm (typical of UHF
@@ -90,8 +90,8 @@ Multipath presets (all numbers **ours**; [A] gives none)
   (as in real passive systems): in the main lobe tags are read to ≈ 11 m, in
   the back lobe only to ≈ 1.1 m.
 
-Paths
------
+**Paths**
+
 :func:`line_path` is the straight pass of [A] Fig. 5.2 (distance to the tag
 first decreasing, then increasing). One straight line cannot localise a tag
 in 3D: every distance to points of a line is unchanged by a rotation about
@@ -170,13 +170,13 @@ DEFAULT_READER_HEIGHT = 1.0
 """Reader antenna height (m) when a path is given in 2D (ours)."""
 
 DEFAULT_SENSITIVITY = 1e-11
-"""Reader sensitivity −80 dBm = 1e-11 W (ours: typical UHF readers hear −70 to −85 dBm)."""
+"""Reader sensitivity −80 dBm = 1e-11 W (ours, as typical UHF readers hear −70 to −85 dBm)."""
 
 DEFAULT_TAG_SENSITIVITY = 10.0 ** (-4.8)
-"""Tag chip sensitivity −18 dBm ≈ 1.58e-5 W of incident power (ours: a typical passive UHF chip)."""
+"""Tag chip sensitivity −18 dBm ≈ 1.58e-5 W of incident power (ours, a typical passive UHF chip)."""
 
 MASKED_RSSI = 1.0
-"""RSSI (W) written in masked slots: finite, positive (passes validation) and absurdly large, so misuse shows."""
+"""RSSI (W) written in masked slots, finite, positive (passes validation) and absurdly large, so misuse shows."""
 
 MASKED_PHASE = 0.0
 """Phase (rad) written in masked slots."""
@@ -208,7 +208,8 @@ DEFAULT_ROOM = Room(
     hi=np.array([3.0, 3.5, 2.8], np.float32),
     reflection=np.array([-0.6, -0.6, -0.6, -0.6, -0.4], np.float32),
 )
-"""Ours: a 4 × 5 × 2.8 m room around :data:`SEARCH_BOX_A` (walls Γ = −0.6, ceiling Γ = −0.4)."""
+"""The room of the strong preset (ours), 4 × 5 × 2.8 m around :data:`SEARCH_BOX_A` (walls Γ = −0.6, ceiling
+Γ = −0.4)."""
 
 
 class Multipath(NamedTuple):
@@ -241,6 +242,7 @@ STRONG_MULTIPATH = Multipath(
 """Wall images of :data:`DEFAULT_ROOM` × Gamma(8, 0.125) fading, 10° phase noise (ours)."""
 
 MULTIPATH_NAMES = {"light": LIGHT_MULTIPATH, "strong": STRONG_MULTIPATH}
+"""The multipath presets by name (``"light"``, ``"strong"``)."""
 
 
 def get_multipath(multipath: str | Multipath) -> Multipath:

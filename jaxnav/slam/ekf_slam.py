@@ -1,7 +1,7 @@
 """EKF-SLAM with known correspondences, [A] Alg. 4 (Thrun et al. Tab. 10.1).
 
-Overview
---------
+**Overview**
+
 One Gaussian over the joint state ``[x, y, θ, m₁ₓ, m₁ᵧ, …, m_Mₓ, m_Mᵧ]``
 ([A] eq. 2.1) of a fixed capacity of ``M = config.num_landmarks`` landmark
 slots, with a ``seen [M]`` mask. Observation ids are slot indices (known data
@@ -117,7 +117,8 @@ __all__ = [
 ]
 
 POSE_DIM = 3
-UNSEEN_VARIANCE = 100.0  # m², the placeholder variance of an unseen slot (never read by the filter)
+UNSEEN_VARIANCE = 100.0
+"""The placeholder variance (m²) of an unseen landmark slot (never read by the filter)."""
 
 _SKIP, _INITIALISE, _UPDATE = 0, 1, 2
 

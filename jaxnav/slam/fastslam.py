@@ -1,7 +1,7 @@
 """FastSLAM 1.0 and 2.0 with known data association, generic over the observation model.
 
-Overview
---------
+**Overview**
+
 A Rao-Blackwellised particle filter ([A] Alg. 5, [W] eq. 3.2; Montemerlo et
 al. 2002/2003; Thrun et al. Tab. 13.1–13.2): each of the ``N`` particles
 holds a pose ``(x, y, θ)`` and its own map of ``M`` landmarks, every landmark
@@ -40,8 +40,8 @@ One step:
    copied in place (every resampling scheme returns sorted ancestors), so a
    jitted ``step`` with donated state moves each map once.
 
-Observation models
-------------------
+**Observation models**
+
 The observation models are :mod:`jaxnav.models.observation`'s
 :class:`~jaxnav.models.observation.ObservationModel` (``mean(pose, landmark) -> z``,
 ``inverse(pose, z) -> landmark``, ``noise_cov(sensor_params) -> R``, the circular
@@ -117,13 +117,13 @@ __all__ = [
 _POSE_ANGLE_DIMS = (2,)
 
 DEFAULT_PARALLEL_SLOTS = 2
-"""Default ``FastSLAMConfig.parallel_slots``: first observations of a step updated at once."""
+"""Default ``FastSLAMConfig.parallel_slots``, the first observations of a step updated at once."""
 
 IN_PLACE_MIN_FLOATS = 3072
 """Map size per particle (floats, ``M · (D + D²)``) from which resampling copies maps in place.
 
 Below it ``jnp.take`` is faster than the row-copy loop of
-:func:`jaxnav.core.resampling.copy_ancestors_in_place` (benchmark W3)."""
+``jaxnav.core.resampling.copy_ancestors_in_place`` (benchmark W3)."""
 
 
 UNROLL_MIN_FLOATS = 256
@@ -140,13 +140,13 @@ class FastSLAMConfig:
         num_landmarks: M, the map capacity (landmark slots ``0 … M−1``).
         version: 1 (proposal = motion model) or 2 (proposal from the observations).
         motion_model: name in :data:`jaxnav.models.motion.MODELS`.
-        observation_model: a name in ``OBSERVATION_MODELS`` or an :class:`ObservationModel`.
+        observation_model: a name in ``OBSERVATION_MODELS`` or an :class:`~jaxnav.models.observation.ObservationModel`.
         resampling: scheme name in :data:`jaxnav.core.resampling.SCHEMES`.
         ess_threshold: resample when ESS < ``ess_threshold · N``; 1.0 (default) every step.
         map_copy: how resampling copies the maps: "gather" (``jnp.take``), "in_place" (the
-            row-copy loop of :func:`~jaxnav.core.resampling.copy_ancestors_in_place`, which needs
+            row-copy loop of ``jaxnav.core.resampling.copy_ancestors_in_place``, which needs
             the sorted ancestors that every scheme returns) or "auto" (in place for rows of at least
-            :data:`IN_PLACE_MIN_FLOATS`). Use "gather" when the filter runs under ``vmap`` (batch Monte
+            ``IN_PLACE_MIN_FLOATS`` = 3072 floats). Use "gather" when the filter runs under ``vmap`` (batch Monte
             Carlo): the loop's trip count then differs between runs, and a batched ``while`` selects
             the whole maps on every iteration.
         parallel_slots: how many of a step's first observations of a landmark are updated at
@@ -154,9 +154,8 @@ class FastSLAMConfig:
             results are the same either way). Each costs ``N`` EKF updates per step whether
             used or not; a loop iteration under ``vmap`` also selects the slot buffer, while an
             unbatched loop iteration is cheap. About the number of landmarks a step usually
-            observes is fastest under ``vmap`` (Table 3.1 at 100 tags/m², 2–3 per step: 3
-            lanes 0.78 s per run, 2 lanes 0.87 s; at 16 tags/m², 0–1 per step: 1 lane 0.27 s,
-            2 lanes 0.37 s).
+            observes is fastest under ``vmap`` (in Table 3.1's settings: 3 lanes at 100 tags/m²,
+            where a step observes 2–3; 1 lane at 16 tags/m², where it observes 0–1).
         covariance: where the landmark covariances live: "per_particle" (``[N, M, D, D]``, each
             particle its own, as in Montemerlo et al.), "shared" (``[M, D, D]``, one per landmark,
             for observation models whose covariance update does not depend on the pose,
@@ -202,7 +201,7 @@ class FastSLAMConfig:
 
     @property
     def obs_model(self) -> ObservationModel:
-        """The resolved :class:`ObservationModel`."""
+        """The resolved :class:`~jaxnav.models.observation.ObservationModel`."""
         om = self.observation_model
         return om if isinstance(om, ObservationModel) else OBSERVATION_MODELS[om]
 
@@ -213,7 +212,7 @@ class FastSLAMConfig:
 
     @property
     def map_floats(self) -> int:
-        """Floats per particle that resampling copies: ``M · D``, plus ``M · D²`` per-particle covariances."""
+        """Floats per particle that resampling copies, ``M · D`` plus ``M · D²`` for per-particle covariances."""
         d = self.obs_model.landmark_dim
         return self.num_landmarks * (d if self.shared_covariance else d + d * d)
 
@@ -515,9 +514,9 @@ def update_landmarks_in_order(
     valid: jax.Array,
     ids: jax.Array,
 ) -> tuple[SlotUpdates, jax.Array, jax.Array, jax.Array]:
-    """:func:`update_landmarks` as a ``scan`` over all ``K`` slots: its derivative.
+    """``update_landmarks`` as a ``scan`` over all ``K`` slots: its derivative.
 
-    The same sequential updates (:func:`_apply_slot`), slot after slot, with a fixed trip
+    The same sequential updates (``_apply_slot``), slot after slot, with a fixed trip
     count: a loop whose trip count depends on the data cannot be differentiated in reverse
     mode. Under ``vmap`` every slot then costs an update and an initialisation, so it only
     serves derivatives.
@@ -626,8 +625,8 @@ def write_rows(
 ) -> tuple[jax.Array, jax.Array]:
     """Scatter the updated rows into maps already copied from ``ancestors``: particle ``n``
     gets its ancestor's rows. One scatter per array over all ``K`` slots (a slot that writes
-    nothing has ``write[k] = M`` and is dropped). Writing slot by slot took ``4K`` small kernels
-    per step, and as many fusions to compile. Shared covariances are written once per landmark."""
+    nothing has ``write[k] = M`` and is dropped). Writing slot by slot would take ``4K`` small
+    kernels per step, and as many fusions to compile. Shared covariances are written once per landmark."""
     rows_mu = jnp.swapaxes(jnp.take(upd.rows_mu, ancestors, axis=1, mode="clip"), 0, 1)  # [N, K, D]
     means = means.at[:, upd.write].set(rows_mu, mode="drop")
     if _is_shared(means, covs):
@@ -749,7 +748,7 @@ def _copy_maps(means, covs, ancestors, config: FastSLAMConfig):
     """Every particle takes its ancestor's map: the O(N·M) copy of [A] Alg. 5's resampling.
 
     Large maps with sorted ancestors are copied in place
-    (:func:`~jaxnav.core.resampling.copy_ancestors_in_place`) unless ``config.map_copy`` is
+    (``jaxnav.core.resampling.copy_ancestors_in_place``) unless ``config.map_copy`` is
     "gather"; ``ancestors = arange`` (no resampling) copies nothing in place. Shared covariances
     are not copied.
     """
@@ -764,14 +763,13 @@ def _copy_maps(means, covs, ancestors, config: FastSLAMConfig):
 
 def run_unroll(config: FastSLAMConfig) -> int:
     """Steps per scan iteration in :func:`run`: 2 when resampling gathers maps of at least
-    :data:`UNROLL_MIN_FLOATS` per particle, else 1.
+    ``UNROLL_MIN_FLOATS`` (256) floats per particle, else 1.
 
     A gathered map is a new buffer that the scan would copy back into its carry at every step;
-    with two steps per iteration the second gather writes straight into the carry. Measured
-    under ``vmap`` (R = 25, Table 3.1, shared covariances): 420 floats per particle (100 tags/m²)
-    0.37 → 0.27 s per run, for 9.0 → 10.5 s of compilation; 56 floats (16 tags/m²) 0.11 → 0.15 s
-    per run. (Per-particle covariances, R = 10: 1,260 floats 0.98 → 0.60 s; 168 floats 0.24 s
-    either way.)
+    with two steps per iteration the second gather writes straight into the carry. Under ``vmap``
+    in Table 3.1's settings this shortens a run with 420 floats per particle (100 tags/m², shared
+    covariances) or 1,260 (per-particle covariances), for a somewhat longer compilation, while
+    small maps (56 floats at 16 tags/m²) run slower unrolled.
     """
     return 2 if not _copies_in_place(config) and config.map_floats >= UNROLL_MIN_FLOATS else 1
 

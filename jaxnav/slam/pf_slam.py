@@ -1,7 +1,7 @@
 """PF-SLAM ([W] Alg. 1): a particle filter for the robot and an independent particle filter per RFID tag.
 
-Overview
---------
+**Overview**
+
 The HF-RFID SLAM of [W] ch. 3. The robot pose is tracked by ``I`` particles
 (eq. 3.4); every tag ``n`` detected so far has its own set of ``J`` particles
 ``ʷm_n^{[j]}`` with log-weights (eq. 3.5). Per step, for the tags detected
@@ -193,7 +193,7 @@ step, run = filter_api.build(
         :class:`~jaxnav.models.hf_rfid.TagDetections` (slots ``[K]``). Returns ``(state, SLAMInfo)``.""",
         run_doc="""PF-SLAM over a sequence: ``controls [T, control_dim]`` odometry (for "omni":
         ``(v_x, v_y, ω, Δt)``) and detections with leading axis ``T``; ``state`` from :func:`init`.
-        ``trace`` is a :class:`SLAMInfo` with leading axis ``T``. ``donate_state=True`` matters for
+        ``trace`` is a :class:`~jaxnav.slam.tag_slam.SLAMInfo` with leading axis ``T``. ``donate_state=True`` matters for
         large tables: without it the initial table is copied into the scan at every call.""",
         state_type=PFSLAMState,
     ),

@@ -1,7 +1,7 @@
 """PS-SLAM ([W] Alg. 2): a particle filter for the robot and a fixed-lag particle smoother per RFID tag.
 
-Overview
---------
+**Overview**
+
 As :mod:`jaxnav.slam.pf_slam`, except that each detected tag is estimated by
 Kitagawa's fixed-lag particle smoother ([W] §4.1–4.2, eq. 4.4). A tag
 particle carries the ring of its last ``L`` states (eq. 4.5; ``L`` = 20–30
@@ -56,6 +56,7 @@ __all__ = [
     "SmootherTable",
     "PSSLAMState",
     "SLAMInfo",
+    "default_jitter",
     "init",
     "kernel",
     "step",
@@ -87,7 +88,7 @@ class PSSLAMParams(NamedTuple):
         motion: motion-model noise (``OmniNoise`` for [W] eq. 3.6).
         sensor: :class:`jaxnav.models.hf_rfid.HFReaderParams`.
         tag_jitter_sd: standard deviation of the Gaussian move of a tag particle at each re-detection
-            ([W] Alg. 2 line 11; m). [W] gives no value; :func:`default_jitter` is σ/10.
+            ([W] Alg. 2 line 11; m). [W] gives no value; ``default_jitter`` is σ/10.
     """
 
     motion: Any
@@ -219,7 +220,7 @@ step, run = filter_api.build(
         step_doc="""One PS-SLAM step ([W] Alg. 2) with the odometry ``control [control_dim]`` and one step's
         :class:`~jaxnav.models.hf_rfid.TagDetections` (slots ``[K]``). Returns ``(state, SLAMInfo)``.""",
         run_doc="""PS-SLAM over a sequence: ``controls [T, control_dim]`` odometry and detections with leading
-        axis ``T``; ``state`` from :func:`init`. ``trace`` is a :class:`SLAMInfo` with leading axis ``T``.
+        axis ``T``; ``state`` from :func:`init`. ``trace`` is a :class:`~jaxnav.slam.tag_slam.SLAMInfo` with leading axis ``T``.
         ``donate_state=True`` matters for large tables: without it the initial table and its rings are
         copied into the scan at every call.""",
         state_type=PSSLAMState,

@@ -329,7 +329,7 @@ def slam_step(
     """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
 
     With ``config.parallel_slots = L`` smaller than the ``K`` detection slots, the valid slots
-    are moved to the front and only the first ``L`` are processed (:func:`_compacted_result`).
+    are moved to the front and only the first ``L`` are processed (``_compacted_result``).
     """
     num_slots = det.ids.shape[0]
     lanes = config.parallel_slots
@@ -445,8 +445,8 @@ def _slot_result(
     particles, log_w = jax.vmap(lambda k, row, new, off: tag_model.propose(k, row, new, pose_est, off, config, params))(
         tag_keys, rows, is_new, offsets[first]
     )
-    # Materialised for the same reason as the poses: PS-SLAM's ring mean fused the jitter draw and
-    # recomputed it for every ring entry (3.5 ms of a 5.7 ms step at 24 slots, lag 20).
+    # Materialised for the same reason as the poses: otherwise PS-SLAM's ring mean fuses the jitter
+    # draw and recomputes it for every ring entry, which would dominate the step.
     particles = jax.lax.optimization_barrier(particles)
     own = jax.vmap(lambda p, off: hf_rfid.tag_log_likelihood(p, pose_est, off, sensor))(particles, offsets)
     group = same & jnp.where(is_new[:, None], slots[None, :] != first[:, None], True)

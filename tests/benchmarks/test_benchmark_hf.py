@@ -1,10 +1,10 @@
 """HF-RFID SLAM benchmark workloads S1, S2, W5 (benchmarks/workloads/{s1_hf_particles,s2_hf_map_size,w5_monte_carlo}.py).
 
-Sanity only — no timing is asserted (BENCHMARKS.md: a time is compared only
-with another measured in the same run):
+Sanity only — no timing is asserted (a time is compared only with another
+measured in the same run):
 
 * each workload, run at its smallest size on a short trajectory, returns rows
-  in the BENCHMARKS.md "Interface" format (``workload, implementation, size,
+  in the harness's row format (``workload, implementation, size,
   mode, median_s, compile_s`` plus ``method``; S1 also ``setting``) with
   positive, finite times;
 * the S2 world is what its docstring states: with the HF reader model of
@@ -18,7 +18,7 @@ with another measured in the same run):
 * the S2 ratio t(largest)/t(10) is computed per method and mode;
 * the plot functions draw S1/S2/W5 rows.
 
-Every jitted function compiles in 5–15 s on this machine, so each test
+Every jitted function takes seconds to compile, so each test
 compiles one or two configurations only (FastSLAM, the quickest to compile,
 for the S1 modes; PF-SLAM for S2; W5 on a small setting).
 """

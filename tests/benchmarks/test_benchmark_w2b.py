@@ -18,12 +18,11 @@
   separate ``mcl.run`` calls with the same keys, data and initial states
   (float32; 1e-5 m allows for XLA compiling the vmapped program with another
   association order; measured: bit-identical).
-* ``python -m benchmarks.run --only W2b`` writes rows in the BENCHMARKS.md
-  "Interface" format (sizes made small).
+* ``python -m benchmarks.run --only W2b`` writes rows in the harness's row
+  format (sizes made small).
 
-No timing is asserted. The batched jaxnav program compiles in 5–30 s on
-the two-core test machine: the tests share one configuration (R = 3,
-N = 32), compiled once per process.
+No timing is asserted. The batched jaxnav program is slow to compile, so
+the tests share one configuration (R = 3, N = 32), compiled once per process.
 """
 
 from __future__ import annotations

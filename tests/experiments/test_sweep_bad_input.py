@@ -374,8 +374,8 @@ def test_a_checkpoint_null_reaches_the_written_table(tmp_path):
 
 
 def test_a_committed_full_size_checkpoint_still_reads(tmp_path):
-    """The committed full-size checkpoint of table-3.1 (written before checkpoints recorded their chunk size)
-    passes the checks and gives the committed result again, now with its diverged-run counts (none)."""
+    """The committed full-size checkpoint of table-3.1 (one that does not record its chunk size) passes the
+    checks and gives the committed result again, with its diverged-run counts (none)."""
     import pathlib
     import shutil
 

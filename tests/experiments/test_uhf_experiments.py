@@ -4,7 +4,7 @@ The quick variants of fig-5.3 and fig-5.5 run end to end in one module fixture (
 setting, 300 particles, 97 steps; both use one compiled 3D function), writing JSON, Markdown and PNG
 like the CLI, while a wrapper counts how often Alg. 6 (``rfid_tag.run``, called while the cell function is traced)
 is traced. fig-5.6
-(2D) would need a second compilation (~12 s), more than this file's budget: its cells, its summary
+(2D) would need a second compilation, more than this file's time budget allows: its cells, its summary
 of per-run results of the exact shape its function returns (``jax.eval_shape``, no compilation) and
 its 2D error are checked instead; its full run is in benchmarks/results/experiments. The other tests
 check the pieces a run is made of (the tag and anchor draws, the prior's RMSE, the RMSE summary)
@@ -56,7 +56,7 @@ def results(tmp_path_factory):
 
 
 def _compiled(fn, *args):
-    """``fn`` jitted for ``args`` at sweep.FAST_COMPILE (XLA's default takes ~4 s for these few draws)."""
+    """``fn`` jitted for ``args`` at sweep.FAST_COMPILE (XLA's default options compile these few draws slowly)."""
     return jax.jit(fn).lower(*args).compile(compiler_options=sw.FAST_COMPILE)
 
 
@@ -66,7 +66,7 @@ def _runs(out, name):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_files_and_json_layout(results, name):
-    """One row per curve with exactly the fields of the issue; the interval brackets the mean."""
+    """One row per curve with exactly the documented fields; the interval brackets the mean."""
     res, out, _ = results
     for ext in ("json", "md", "png"):
         assert (out / f"{name}.quick.{ext}").stat().st_size > 0
@@ -160,8 +160,8 @@ def test_light_3d_combined_localises_the_tag(results):
 
 def test_fig_5_6_cells_summary_and_2d_error(tmp_path):
     """fig-5.6 without a run: two 2D cells (light, strong) sharing one function; per-run results of
-    exactly the shapes and fields that function returns (jax.eval_shape) summarise into the layout of
-    the issue with no thesis numbers; the table, Markdown and PNG render. The 2D error ignores z (the
+    exactly the shapes and fields that function returns (jax.eval_shape) summarise into the documented
+    layout with no thesis numbers; the table, Markdown and PNG render. The 2D error ignores z (the
     height is known): a 0.3 m height error counts 0, a 0.3 m, 0.4 m error in x, y counts 0.5 m."""
     exp = registry.get("fig-5.6")
     cells = exp.cells(True)

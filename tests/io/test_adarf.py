@@ -2,9 +2,10 @@
 
 Real data (skipped, with the reason, when the data folder is absent): the folder is
 ``$JAXNAV_DATA/adarf-uhf-rfid-phase``, default ``../shared/data``
-(:func:`jaxnav.io.adarf.data_dir`). Reference facts come from the dataset's ``SOURCE.md``
-(about 1000 reads per tag and aperture point over 8 channels, stray EPCs, phase
-residual 0.21–0.60 rad at the ground truth against ≈ 1.8 rad for wrong positions).
+(:func:`jaxnav.io.adarf.data_dir`). Reference facts are properties of the data, found
+on the raw files without jaxnav (about 1000 reads per tag and aperture point over 8
+channels, stray EPCs, phase residual 0.21–0.60 rad at the ground truth against ≈ 1.8 rad
+for wrong positions).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def exp():
 
 def test_loader_reads_the_documented_format(exp):
     assert EXPERIMENT in adarf.available_experiments()
-    # SOURCE.md: about 1000 reads per target tag and aperture point, over the 8 channels
+    # the data hold about 1000 reads per target tag and aperture point, over the 8 channels
     counts = np.zeros((3, adarf.NUM_POINTS), int)
     np.add.at(counts, (exp.tag, exp.point), 1)
     assert 800 < counts.min() and counts.max() < 1300
@@ -77,7 +78,7 @@ def test_phase_convention_fits_the_ground_truth(exp):
     for g in range(3):
         _, rms_true = adarf.phase_residuals(exp, g, exp.tags_xy[g])
         _, rms_off = adarf.phase_residuals(exp, g, exp.tags_xy[g] + np.array([0.10, 0.0]))
-        assert rms_true < 0.6 and rms_off > 1.0, (g, rms_true, rms_off)  # SOURCE.md: 0.21-0.60 vs ~1.8 rad
+        assert rms_true < 0.6 and rms_off > 1.0, (g, rms_true, rms_off)  # the data: 0.21-0.60 vs ~1.8 rad
 
 
 def test_to_uhf_reads_slots_channels_and_alignment(exp):
@@ -120,7 +121,7 @@ def test_real_tags_are_localized_well_under_the_prior_spread(localized):
     combined 0.042-0.050 / 0.041-0.042 / 0.236-0.256 m and phase-only 0.173-0.307 / 0.045-0.076 /
     0.211-0.247 m for tags 0 / 1 / 2, against a uniform guess's RMS error of 0.56-0.60 m.
     The bound 0.35 m is the largest of those (0.31 m) plus a margin for platform differences.
-    Phase-only fixes the position along the track to a few cm (SOURCE.md), the depth only weakly.
+    Phase-only fixes the position along the track to a few cm, the depth only weakly.
     """
     assert len(localized) == 6
     for r in localized:

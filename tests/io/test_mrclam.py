@@ -7,9 +7,8 @@ Two kinds of test:
 * real data (skipped, with the reason, when the data folder is absent): the
   folder is ``$JAXNAV_DATA/utias-mrclam-dataset7``, default
   ``../shared/data`` (see :func:`jaxnav.io.mrclam.data_dir`). The reference
-  numbers are the dataset's SOURCE.md (counts, residual medians/MADs,
-  dead-reckoning errors), which were computed when the data was staged, not by
-  this code.
+  numbers (counts, residual medians/MADs, dead-reckoning errors) were computed
+  from the raw files independently of this code.
 """
 
 from __future__ import annotations
@@ -227,13 +226,13 @@ def test_trajectory_rmse():
 
 @pytest.mark.parametrize(
     "robot, landmark, other_robot, unknown",
-    [(1, 2578, 650, 0), (2, 3818, 700, 0), (3, 4425, 965, 9)],  # SOURCE.md "Measurement counts"
+    [(1, 2578, 650, 0), (2, 3818, 700, 0), (3, 4425, 965, 9)],  # reference measurement counts
 )
 def test_counts_match_source(folder, robot, landmark, other_robot, unknown):
     r = mrclam.load_robot(robot)
     assert (r.num_landmark, r.num_robot, r.num_unknown) == (landmark, other_robot, unknown)
     assert r.num_landmark + r.num_robot + r.num_unknown == r.measurements.t.shape[0]
-    if unknown:  # SOURCE.md: barcodes 34 and 52 are not in Barcodes.dat
+    if unknown:  # barcodes 34 and 52 are not in Barcodes.dat
         assert set(r.measurements.barcode[r.measurements.subject == -1].tolist()) == {34, 52}
 
 
@@ -248,13 +247,13 @@ def test_loaded_arrays(folder, robot1):
     assert lmap.subjects.tolist() == list(range(6, 21))
     assert lmap.positions.shape == (15, 2) and lmap.sd.shape == (15, 2)
     np.testing.assert_allclose(lmap.positions[0], [0.58842660, -4.28209684])  # subject 6, first row of the file
-    assert np.all(lmap.sd < 1e-3)  # SOURCE.md: survey std-devs below 1 mm
+    assert np.all(lmap.sd < 1e-3)  # the survey's std-devs are below 1 mm
     m = robot1.measurements
     assert m.barcode[0] == 61 and m.subject[0] == 14  # first row; Barcodes.dat: subject 14 <-> barcode 61
     assert np.all(np.diff(m.t) >= 0)
     for stream in (robot1.odometry, robot1.measurements, robot1.ground_truth):
         assert all(a.dtype in (np.float64, np.int64) and a.shape == stream.t.shape for a in stream)
-    # SOURCE.md: 900 s of ground truth; odometry starts 6–9 s after it
+    # 900 s of ground truth; odometry starts 6–9 s after it
     assert 899.0 < robot1.ground_truth.t[-1] - robot1.ground_truth.t[0] < 901.0
     assert 6.0 < robot1.odometry.t[0] - robot1.ground_truth.t[0] < 9.0
     # the in-memory cache hands out read-only arrays and the same object again
@@ -320,13 +319,13 @@ def _median_mad(x):
     return med, np.median(np.abs(x - med))
 
 
-# SOURCE.md "Sanity checks", robot 1: range median / MAD, bearing median / MAD, printed to 3 decimals
+# Reference sanity check, robot 1: range median / MAD, bearing median / MAD, printed to 3 decimals
 SOURCE_R1 = (0.044, 0.045, -0.001, 0.012)
 ROUNDING = 0.0005 + 1e-5  # half a unit in the 3rd decimal, plus float32 prediction error (< 1e-5 at ≤ 10 m)
 
 
 def test_residuals_reproduce_source_at_measurement_times(robot1):
-    """SOURCE.md's check: ground truth interpolated to the measurement times
+    """The reference check: ground truth interpolated to the measurement times
     (θ unwrapped), landmark measurements predicted with jaxnav.models.landmarks.predict."""
     m = robot1.measurements
     sel = m.subject >= 6
@@ -368,7 +367,7 @@ def test_residuals_reproduce_source_on_filter_steps(seq1, robot1):
 
 
 def _midpoint_reference(odo, pose0, t_query):
-    """SOURCE.md's dead reckoning, written independently: mid-point integration of
+    """The reference dead reckoning, written independently: mid-point integration of
     each held odometry reading on the odometry clock, from the first reading."""
     t, v, w = odo.t, odo.v, odo.omega
     h = np.diff(t)
@@ -405,7 +404,7 @@ def _discretisation_bound(odo, t0, dt, n_steps):
     return arc + step
 
 
-# SOURCE.md: robot 1 dead-reckoning error 0.39 m at 60 s and 2.46 m at 300 s (2 decimals)
+# Reference: robot 1 dead-reckoning error 0.39 m at 60 s and 2.46 m at 300 s (2 decimals)
 @pytest.mark.parametrize("seconds, source", [(60.0, 0.39), (300.0, 2.46)])
 def test_dead_reckoning_matches_source(seq1, robot1, dr1, seconds, source):
     i = int(round(seconds / seq1.dt)) - 1  # step ending `seconds` after the first odometry reading
@@ -413,7 +412,7 @@ def test_dead_reckoning_matches_source(seq1, robot1, dr1, seconds, source):
     truth = mrclam.interpolate_ground_truth(robot1.ground_truth, np.array([t_i]))[0]
     ref = _midpoint_reference(robot1.odometry, mrclam.interpolate_ground_truth(robot1.ground_truth, [seq1.t0])[0], t_i)
     ref_err = np.hypot(*(ref - truth[:2]))
-    assert abs(ref_err - source) <= 0.005  # our reading of SOURCE's method reproduces it
+    assert abs(ref_err - source) <= 0.005  # our reading of the reference's method reproduces it
     # negative control: holding each reading over the interval *before* it misses by > 0.1 m
     odo = robot1.odometry
     backward = mrclam.Odometry(odo.t, np.append(odo.v[1:], odo.v[-1]), np.append(odo.omega[1:], odo.omega[-1]))

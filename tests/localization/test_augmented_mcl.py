@@ -90,7 +90,7 @@ def test_kidnapped_robot_recovers_with_injection_and_plain_mcl_does_not(seed):
     """The kidnapped-robot problem ([A] §2.1.3): 1,000 particles, 8 landmarks all in view,
     default alphas (0.02, 0.2).
 
-    Bound 0.2 m: the acceptance bound of converged landmark MCL in this world
+    Bound 0.2 m: the convergence bound of landmark MCL in this world
     (tests/localization/test_mcl.py, the demo); before the kidnap both filters track at
     < 0.13 m, and a lost filter is off by about the kidnap distance, 3.5 m.
     Horizon 30 steps (7.5 s): over seeds 0–7 recovery took 2–23 steps and the

@@ -64,7 +64,7 @@ def test_global_localization_count_adapts_and_estimate_converges(seed):
     asks for more than N_max (the candidates fill ~1,850 of the 57,600 bins), so n_t = N_max;
     once converged the posterior spans a few 0.25 m × 0.25 m × 10° bins (k ≤ ~10, so
     n_χ ≤ ~220) and n_t ≤ 0.1·N_max. Error bound 0.2 m over the last 20 steps: the
-    acceptance bound of converged landmark MCL in this world (tests/localization/test_mcl.py); over
+    convergence bound of landmark MCL in this world (tests/localization/test_mcl.py); over
     seeds 0–4 the measured maximum was 0.15 m and the largest converged count 186."""
     r = _global_run(seed)
     trace, truth = r["trace"], r["truth"]

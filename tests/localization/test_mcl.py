@@ -30,7 +30,7 @@ def _setting(n=300, steps=30, **config_kw):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_demo_converges_below_20_cm_after_50_steps(seed):
-    """The issue's acceptance bound: position error < 0.2 m from step 50 on, in the demo world."""
+    """The convergence bound of landmark MCL: position error < 0.2 m from step 50 on, in the demo world."""
     result = run_demo(seed=seed, num_steps=80)
     assert np.all(np.isfinite(result.estimates))
     assert result.position_error[49:].max() < 0.2, result.position_error[49:].max()

@@ -29,7 +29,7 @@ def test_power_and_gain_unit_helpers():
     np.testing.assert_allclose(U.db_to_linear(3.0), 1.9952623, rtol=1e-6)
     np.testing.assert_allclose(U.linear_to_db(U.db_to_linear(8.0)), 8.0, rtol=1e-6)
     np.testing.assert_allclose(U.DEFAULT_ANTENNA.g0, U.db_to_linear(8.0), rtol=1e-6)
-    # SPEC §4: [A]'s 0.173 m is (to 0.1 %) half the 866 MHz wavelength
+    # [A]'s 0.173 m is (to 0.1 %) half the 866 MHz wavelength
     np.testing.assert_allclose(U.wavelength_from_frequency(866e6), 0.3461807, rtol=1e-6)
     assert abs(2 * U.A_WAVELENGTH / U.WAVELENGTH_866MHZ - 1) < 1e-3
     assert U.DEFAULT_WAVELENGTH == U.A_WAVELENGTH == 0.173
@@ -442,7 +442,7 @@ N_BUF = 10_000  # one buffer size for every float32 estimator call (one compilat
 def _anchor_reads(seed, k, theta, n=N_BUF, dtype=np.float32):
     """Anchor reads y_i = a_i g_i², g_i ~ Gamma(k, θ), with a different known a_i per read
     (the reader moves; a_i log-uniform over 1e-10…1e-8 W). Drawn with NumPy: jax.random.gamma
-    compiles for every new shape (~2 s), and the sampler is tested on its own below."""
+    compiles slowly for every new shape, and the sampler is tested on its own below."""
     rng = np.random.default_rng(seed)
     a = np.exp(rng.uniform(math.log(1e-10), math.log(1e-8), n))
     g = rng.gamma(k, theta, n)

@@ -56,7 +56,7 @@ def _run_batch(sims, params=PARAMS, state=None, observations=None):
     A loop of ``run`` calls (one compilation shared by every test):
     :func:`test_vmap_over_runs_matches_loop_and_ignores_unknown_ids` checks
     that ``jax.vmap(run)`` gives the same, but the batched program takes
-    about 1.5× as long to compile.
+    longer to compile.
     """
     s0 = ekf_slam.init(None, CONFIG, params, X0, P0) if state is None else state
     obs = sims.observations if observations is None else observations

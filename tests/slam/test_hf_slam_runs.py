@@ -1,7 +1,7 @@
 """PF-SLAM, PS-SLAM and FastSLAM on simulated tag carpets: the behaviours [W] ch. 3 reports.
 
-Bounds are stated with the figures measured on these fixed seeds when the
-test was written (jaxnav 0.1.0, JAX 0.10, CPU).
+Bounds are stated with the figures measured on these fixed seeds (jaxnav
+0.1.0, JAX 0.10, CPU).
 """
 
 from __future__ import annotations

@@ -27,7 +27,6 @@ the tests check:
 
 from __future__ import annotations
 
-import textwrap
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any, NamedTuple
@@ -41,17 +40,26 @@ from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
 from jaxnav.experiments.hf_slam import simulation as hf
 from jaxnav.experiments.hf_slam.simulation import NOTHING_MAPPED
-from jaxnav.experiments.hf_slam.tables import FIVE_RECTANGLES, METHOD_LABELS, QUICK, diverged_in, quick_setting
+from jaxnav.experiments.hf_slam.tables import (
+    CELLS_BY_NAME,
+    FIVE_RECTANGLES,
+    METHOD_LABELS,
+    QUICK,
+    diverged_in,
+    plot_title,
+    quick_setting,
+    wrap_title,
+)
 from jaxnav.sim import tag_carpet as tc
 
 __all__ = ["curve_experiment", "DETECTION_BINS", "PARTICLES", "READER_SIDES", "EXPERIMENTS"]
 
 DETECTION_BINS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64)
-"""Fig. 3.5: the n-th detection of a tag, grouped in bins ``[b_k, b_{k+1})``."""
+"""Bin edges of Fig. 3.5 — the n-th detection of a tag, grouped in bins ``[b_k, b_{k+1})``."""
 PARTICLES = (100, 250, 500, 1000, 2000, 4000)
-"""Fig. 3.7: robot particle counts."""
+"""Robot particle counts of Fig. 3.7."""
 READER_SIDES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
-"""Fig. 4.4: reader footprint sides (m)."""
+"""Reader footprint sides (m) of Fig. 4.4."""
 
 
 def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray], diverged: Sequence[np.ndarray]) -> dict:
@@ -139,27 +147,50 @@ def markdown_curves(result: dict) -> str:
     return report.markdown(["method", "quantity", *(f"{result['x_label']} = {x:g}" for x in xs)], rows, title)
 
 
-def plot_curves(result: dict, path: str) -> None:
+def _draw_curves(result: dict):
+    """The figure of :func:`plot_curves`."""
     import matplotlib.pyplot as plt
 
     quantities = sorted(
         {c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q)
     )
-    fig, axes = plt.subplots(1, len(quantities), figsize=(6 * len(quantities), 4.4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(quantities), figsize=(6 * len(quantities), 4.6), squeeze=False, layout="constrained"
+    )
     for ax, q in zip(axes[0], quantities):
         for c in (c for c in result["curves"] if c["quantity"] == q):
             x, m = np.array(c["x"]), np.array(c["mean"], float)
             ci = np.array(c["ci95"], float)
-            ax.plot(x, m, "o-", ms=3, label=METHOD_LABELS.get(c["method"], c["method"]))
-            ax.fill_between(x, ci[:, 0], ci[:, 1], alpha=0.2)
+            (line,) = ax.plot(x, m, "o-", ms=3, label=METHOD_LABELS.get(c["method"], c["method"]))
+            # errors are ≥ 0: a symmetric interval's lower end below 0 is drawn at 0
+            ax.fill_between(x, np.maximum(ci[:, 0], 0.0), ci[:, 1], color=line.get_color(), alpha=0.2, lw=0)
+        if result["experiment"] == "kidnapping" or "kidnapping" in result["x_label"]:
+            ax.axvline(0.0, color="0.3", ls="--", lw=1.0, label="kidnapping")
         ax.set_xlabel(result["x_label"])
         ax.set_ylabel(q)
         if result.get("x_log"):
             ax.set_xscale("log")
-        ax.legend(fontsize=8)
-    title = f"{result['experiment']}: {result['title']} ({result['runs']} runs, 95 % CI)"
-    fig.suptitle(textwrap.fill(title, 60 * len(quantities)), fontsize=10)
-    fig.tight_layout()
+            xs = sorted({v for c in result["curves"] if c["quantity"] == q for v in c["x"]})
+            ax.set_xticks(xs, [f"{v:g}" for v in xs])  # the data's x, not powers of ten
+            ax.minorticks_off()
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+    # the panels share their curves: one legend, under them (inside, they would hide curves)
+    handles, texts = axes[0][0].get_legend_handles_labels()
+    handles.append(plt.Rectangle((0, 0), 1, 1, color="0.5", alpha=0.3, lw=0))
+    texts.append("95 % CI of the mean")
+    fig.legend(handles, texts, loc="outside lower center", ncol=len(texts), fontsize=8)
+    title = plot_title(result).split("\n")
+    title[0] = f"{title[0]} ({result['runs']} runs per point)"
+    fig.suptitle("\n".join(wrap_title(t, 75 * len(quantities)) for t in title), fontsize=10)
+    return fig
+
+
+def plot_curves(result: dict, path: str) -> None:
+    """The curves, one panel per quantity, with their 95 % intervals; a PNG at ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_curves(result)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -174,6 +205,8 @@ def curve_experiment(
     x_log: bool = False,
 ) -> Experiment:
     """A figure experiment: ``summarize(raw, cells, quick)`` gives its curves."""
+
+    CELLS_BY_NAME[name] = cells
 
     def summarize_all(raw, cell_list, quick):
         return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}

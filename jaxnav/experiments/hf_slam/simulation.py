@@ -1,7 +1,7 @@
 """One HF-RFID SLAM method on one simulated setting: simulate, filter, score, draw ([W] ch. 3–4).
 
-Overview
---------
+**Overview**
+
 A :class:`HFSetting` fixes everything of one cell of [W]'s tables: tag
 density, reader footprint, trajectory, particle counts and the noise levels
 (ours where [W] gives none; listed below). :func:`run_once` is a pure
@@ -27,8 +27,9 @@ Errors (:class:`Errors`, millimetres and radians as [W] prints them):
 start from the known true pose ([W] Alg. 1).
 
 Noise levels and sizes ([W] gives none, these are ours): odometry velocity
-noise σ = (20 mm/s, 20 mm/s, 0.01 rad/s) on 0.1 s steps (a random walk of about 0.5 % of the distance driven over one 7 m lap) ([W] eq. 3.6, world
-frame), installation jitter ±10 mm, β = 0.1 in [W] eq. 3.7, PS-SLAM tag jitter
+noise σ = (20 mm/s, 20 mm/s, 0.01 rad/s) on 0.1 s steps ([W] eq. 3.6, world
+frame; a random walk of about 0.5 % of the distance driven over one 7 m lap),
+installation jitter ±10 mm, β = 0.1 in [W] eq. 3.7, PS-SLAM tag jitter
 σ/10 with lag 20; a 3 m × 2.5 m carpet with the rectangle 2 m × 1.5 m driven
 at 200 mm/s, the random trajectory at 100–400 mm/s inside the carpet.
 """
@@ -82,7 +83,9 @@ __all__ = [
 ]
 
 METHODS = ("pf_slam", "ps_slam", "fastslam")
+"""The SLAM methods :func:`run_method` runs (PF-SLAM, PS-SLAM, FastSLAM)."""
 TRAJECTORIES = ("rectangle", "random", "kidnapping")
+"""The trajectories a :class:`HFSetting` can drive."""
 
 
 @dataclass(frozen=True)
@@ -229,9 +232,9 @@ class Errors(NamedTuple):
 
 
 ERROR_COLUMNS = Errors._fields
-"""[W]'s table columns: robot x, y, θ, distance; tag x, y, distance (mm, rad)."""
+"""The field names of [W]'s table columns — robot x, y, θ, distance; tag x, y, distance (mm, rad)."""
 COLUMN_HEADS = ("x [mm]", "y [mm]", "θ [rad]", "dr [mm]", "tx [mm]", "ty [mm]", "dt [mm]")
-"""The printed heads of :data:`ERROR_COLUMNS`."""
+"""The printed heads of :data:`~jaxnav.experiments.hf_slam.simulation.ERROR_COLUMNS`."""
 TAG_COLUMNS = ("tx_mm", "ty_mm", "dt_mm")
 """The columns scored over the mapped tags (NaN when the run mapped none)."""
 NOTHING_MAPPED = f"{report.NA} (nothing mapped)"
@@ -350,7 +353,7 @@ def fastslam_parallel_slots(setting: HFSetting) -> int:
 
 
 def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) -> MethodRun:
-    """Run ``method`` (one of :data:`METHODS`) on ``world``'s odometry and detections."""
+    """Run ``method`` (one of :data:`~jaxnav.experiments.hf_slam.simulation.METHODS`) on ``world``'s odometry and detections."""
     return filter_world(key, method, setting, world)[0]
 
 
@@ -473,7 +476,7 @@ def dead_reckoning(run: tc.HFRun) -> jax.Array:
 
 
 def format_errors(rows: list[tuple[str, Any]]) -> str:
-    """A table like [W]'s: one row per ``(label, Errors)`` (a tag error with no tag mapped: :data:`NOTHING_MAPPED`)."""
+    """A table like [W]'s: one row per ``(label, Errors)`` (a tag error with no tag mapped: :data:`~jaxnav.experiments.hf_slam.simulation.NOTHING_MAPPED`)."""
     columns = [report.Column("method", 16, "<")] + [report.Column(h, 9) for h in COLUMN_HEADS]
     cells = []
     for label, e in rows:
@@ -489,10 +492,13 @@ def format_errors(rows: list[tuple[str, Any]]) -> str:
     return report.text(columns, cells)
 
 
-def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:
-    """Path and map (left), robot error over time (middle), tag error against detections (right); a PNG at ``path``."""
+def _draw_run(setting: HFSetting, method: str, world: World, result: MethodRun):
+    """The figure of :func:`plot_run`."""
     import matplotlib.pyplot as plt
 
+    from jaxnav.experiments.hf_slam.tables import METHOD_LABELS  # that module imports this one
+
+    name = METHOD_LABELS.get(method, method)
     run = world.run
     truth = np.asarray(run.true_poses)
     est = np.asarray(result.estimates)
@@ -503,13 +509,15 @@ def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, p
     counts = np.asarray(detection_counts(run, tags.shape[0]))
     times = np.arange(truth.shape[0]) * setting.dt
 
-    fig, (ax_map, ax_err, ax_tag) = plt.subplots(1, 3, figsize=(17, 5.2))
+    # constrained layout makes room for the map's legend under it (tight_layout would cut it off)
+    fig, (ax_map, ax_err, ax_tag) = plt.subplots(1, 3, figsize=(17, 5.8), layout="constrained")
     ax_map.plot(tags[:, 0], tags[:, 1], ".", color="0.75", ms=3, label="tags (truth)")
     ax_map.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="true path")
     ax_map.plot(dr[:, 0], dr[:, 1], "-", color="tab:gray", lw=0.8, label="odometry")
-    ax_map.plot(est[:, 0], est[:, 1], "-", color="tab:blue", lw=1, label=f"{method} path")
+    ax_map.plot(est[:, 0], est[:, 1], "-", color="tab:blue", lw=1, label=f"{name} path")
     ax_map.plot(tags[seen, 0], tags[seen, 1], "o", mfc="none", color="k", ms=5, label="detected tags (truth)")
-    ax_map.plot(mapped[seen, 0], mapped[seen, 1], "x", color="tab:red", ms=5, label=f"{method} map")
+    ax_map.plot(mapped[seen, 0], mapped[seen, 1], "x", color="tab:red", ms=5, label=f"{name} map")
+    ax_map.plot(*truth[0, :2], "o", color="tab:green", ms=8, label="start")
     kid = np.nonzero(np.asarray(run.kidnapped))[0]
     for k in kid:
         ax_map.plot(*truth[k - 1, :2], "v", color="tab:orange", ms=10, label="kidnapped here (B)")
@@ -518,27 +526,36 @@ def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, p
     ax_map.set_xlabel("x (m)")
     ax_map.set_ylabel("y (m)")
     ax_map.set_title(
-        f"{method}: {setting.density:g} tags/m², {1000 * setting.reader_side:g} mm readers, {setting.trajectory}"
+        f"{name}: {setting.density:g} tags/m², {1000 * setting.reader_side:g} mm readers, {setting.trajectory}"
     )
-    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=3)
+    ax_map.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3)
 
     err = 1000 * np.linalg.norm(est[:, :2] - truth[:, :2], axis=1)
     err_dr = 1000 * np.linalg.norm(dr[:, :2] - truth[:, :2], axis=1)
     ax_err.plot(times, err_dr, color="tab:gray", lw=0.8, label="odometry")
-    ax_err.plot(times, err, color="tab:blue", lw=1, label=method)
+    ax_err.plot(times, err, color="tab:blue", lw=1, label=name)
     for k in kid:
         ax_err.axvline(times[k], color="tab:orange", ls="--", lw=1, label="kidnapping")
     ax_err.set_yscale("log")
     ax_err.set_xlabel("time (s)")
     ax_err.set_ylabel("robot position error (mm)")
     ax_err.set_title("robot error")
-    ax_err.legend(fontsize=8)
+    ax_err.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3)
 
     te = 1000 * np.linalg.norm(mapped - tags, axis=1)
-    ax_tag.plot(counts[seen], te[seen], "o", ms=3, alpha=0.6, color="tab:red")
+    ax_tag.plot(counts[seen], te[seen], "o", ms=3, alpha=0.6, color="tab:red", label=f"{name} map: one mapped tag")
     ax_tag.set_xlabel("detections of the tag (steps)")
     ax_tag.set_ylabel("final tag error (mm)")
+    ax_tag.set_ylim(bottom=0)
     ax_tag.set_title("tag error against detections")
-    fig.tight_layout()
+    ax_tag.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1))
+    return fig
+
+
+def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:
+    """Path and map (left), robot error over time (middle), tag error against detections (right); a PNG at ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_run(setting, method, world, result)
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -17,7 +17,9 @@ runs them in seconds. The four tables are :data:`EXPERIMENTS`.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import re
+import textwrap
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -45,10 +47,10 @@ __all__ = [
 METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
 
 ROBOT_COLUMNS = tuple(c for c in ERROR_COLUMNS if c not in TAG_COLUMNS)
-"""The error columns every run has (robot x, y, θ, dr): a non-finite one means the run diverged."""
+"""The error columns every run has (robot x, y, θ, dr); a non-finite one means the run diverged."""
 
 QUICK = dict(robot_particles=100, tag_particles=30, laps=1, random_steps=300)
-"""What the quick variants change: particles, laps, random-trajectory length (and a smaller world)."""
+"""What the quick variants change — particles, laps, random-trajectory length (and a smaller world)."""
 
 FIVE_RECTANGLES = (
     (0.5, 0.5, 2.0, 1.5),
@@ -57,8 +59,8 @@ FIVE_RECTANGLES = (
     (1.0, 1.0, 2.25, 1.25),
     (0.6, 0.6, 1.75, 1.75),
 )
-"""The five predetermined rectangles of [W] §4.4.1 (ours: [W] does not give them), ``(x0, y0, w, h)`` in m,
-on a 4 m × 3.5 m carpet; perimeters 6.5–7.5 m."""
+"""The five predetermined rectangles of [W] §4.4.1 (ours, as [W] does not give them), ``(x0, y0, w, h)``
+in m, on a 4 m × 3.5 m carpet; perimeters 6.5–7.5 m."""
 
 
 class TableRow:
@@ -134,6 +136,7 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
             out_rows.append(entry)
         return {"rows": out_rows, "notes": notes}
 
+    CELLS_BY_NAME[name] = cells
     return Experiment(
         name,
         title,
@@ -206,8 +209,56 @@ def markdown_table(result: dict) -> str:
     return report.markdown(["setting", "method", *COLUMN_HEADS], rows, title, _diverged_footer(result))
 
 
-def plot_table(result: dict, path: str) -> None:
-    """Robot and tag distance errors per row (ours with 95 % intervals, [W] as markers)."""
+def wrap_title(text: str, width: int) -> str:
+    """``text`` wrapped at ``width`` characters, never inside a reference ("[W] §5.4.5, Fig. 5.16")."""
+    text = re.sub(r"(Fig\.|Table|\[[AW]\]|§[\d.]+,) ", "\\1\u00a0", text)
+    return textwrap.fill(text, int(width))
+
+
+CELLS_BY_NAME: dict[str, Callable[[bool], list[Cell]]] = {}
+"""The cells of each HF experiment (tables and figures) by name: a plot says from them what a quick variant ran."""
+
+
+def quick_text(name: str) -> str:
+    """What the quick variant of experiment ``name`` runs, e.g. ``"3 of the 15 settings, 100 robot particles,
+    30 tag particles, 1 lap, 2 × 1.5 m carpet"``; a field its cells differ in (a curve's x) is left out."""
+    if name not in CELLS_BY_NAME:
+        return ""
+    settings = [c.setting for c in CELLS_BY_NAME[name](True)]
+    full = len(CELLS_BY_NAME[name](False))
+    parts = [] if len(settings) == full else [f"{len(settings)} of the {full} settings"]
+    for field, text in (("robot_particles", "{} robot particles"), ("tag_particles", "{} tag particles")):
+        if len(values := {getattr(s, field) for s in settings}) == 1:
+            parts.append(text.format(*values))
+    for s in settings:
+        parts.append(
+            f"{s.random_steps} random steps" if s.trajectory == "random" else f"{s.laps} lap{'s' * (s.laps != 1)}"
+        )
+    for s in settings:
+        parts.append(f"{s.carpet[0]:g} × {s.carpet[1]:g} m carpet")
+    return ", ".join(dict.fromkeys(parts))  # each once, in order
+
+
+def plot_title(result: dict) -> str:
+    """``"NAME: title"``, and a second line naming a quick variant and what it cuts (its numbers are not
+    the experiment's)."""
+    head = f"{result['experiment']}: {result['title']}"
+    if not result.get("quick"):
+        return head
+    details = quick_text(result["experiment"])
+    return f"{head}\nquick variant{f' ({details})' if details else ''}: not the full experiment"
+
+
+def error_bars(means: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``[2, n]`` ``yerr`` of errorbar for an error (≥ 0) with its interval ``[lo, hi]``.
+
+    The intervals are mean ± t·s/√R, symmetric, so a wide one reaches below 0 although no error
+    can; the lower whisker stops at 0 (the stored bound is unchanged)."""
+    return np.array([means - np.maximum(lo, 0.0), hi - means])
+
+
+def _draw_table(result: dict):
+    """The figure of :func:`plot_table`."""
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
@@ -215,13 +266,13 @@ def plot_table(result: dict, path: str) -> None:
         f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}" for r in rows
     ]
     x = np.arange(len(rows))
-    fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.6 * len(rows) + 3), 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.6 * len(rows) + 3), 4.6), layout="constrained")
     for ax, col, what in zip(axes, ("dr_mm", "dt_mm"), ("robot error dr", "tag error dt")):
-        means = np.array([r[col]["mean"] for r in rows])
-        lo = np.array([r[col]["ci95"][0] for r in rows])
-        hi = np.array([r[col]["ci95"][1] for r in rows])
-        ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours ({result['runs']} runs, 95 % CI)")
-        ax.errorbar(x, means, yerr=[means - lo, hi - means], fmt="none", color="k", capsize=3)
+        means = np.array([r[col]["mean"] for r in rows], float)
+        lo = np.array([r[col]["ci95"][0] for r in rows], float)
+        hi = np.array([r[col]["ci95"][1] for r in rows], float)
+        ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours: mean of {result['runs']} runs")
+        ax.errorbar(x, means, yerr=error_bars(means, lo, hi), fmt="none", color="k", capsize=3, label="95 % CI")
         for i in np.flatnonzero(~np.isfinite(means)):  # no run had anything to score
             ax.annotate(_nan(col), (x[i], 0), ha="center", va="bottom", rotation=90, fontsize=7)
         paper = [r[col]["paper"] for r in rows]
@@ -230,9 +281,23 @@ def plot_table(result: dict, path: str) -> None:
         ax.set_xticks(x)
         ax.set_xticklabels(labels, fontsize=8)
         ax.set_ylabel(f"{what} (mm)")
-        ax.legend(fontsize=8)
-    fig.suptitle(f"{result['experiment']}: {result['title']}")
-    fig.tight_layout()
+        ax.set_ylim(bottom=0)
+    # one legend for both panels, under them: inside, it would hide the first bars
+    handles, texts = axes[0].get_legend_handles_labels()
+    order = sorted(range(len(texts)), key=lambda i: texts[i].startswith("[W]"))  # ours first
+    fig.legend([handles[i] for i in order], [texts[i] for i in order], loc="outside lower center", ncol=3, fontsize=8)
+    fig.suptitle(
+        "\n".join(wrap_title(t, 13 * fig.get_figwidth()) for t in plot_title(result).split("\n")),
+        fontsize=10,
+    )
+    return fig
+
+
+def plot_table(result: dict, path: str) -> None:
+    """Robot and tag distance errors per row (ours with 95 % intervals, [W] as markers)."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_table(result)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -4,8 +4,8 @@ The settings, drives and scoring of [W] §5.4's experiments; the experiments
 themselves (Tables 5.2, 5.3 and the drives of §5.4.3–5.4.5) are in
 :mod:`jaxnav.experiments.ir.tables`.
 
-One run
--------
+**One run**
+
 :func:`run_once` simulates a drive (:func:`jaxnav.sim.ir_world.simulate`:
 the physical receiver and its FFT decoder at every 0.1 s step, odometry with
 :data:`~jaxnav.sim.ir_world.DEFAULT_ODOMETRY_ERROR`), filters it with IR MCL
@@ -81,17 +81,19 @@ __all__ = [
 ]
 
 LAYOUTS = ("proposed", "unique-11")
-"""The emitter configurations of [W] §5.4.1: 3 unique + 8 repeated IDs, and 11 unique IDs."""
+"""The emitter configurations of [W] §5.4.1 — 3 unique + 8 repeated IDs, and 11 unique IDs."""
 ALGORITHMS = ("mcl", "odometry")
+"""The rows of a run — IR MCL, and the odometry integrated from the true start."""
 DRIVES = ("spots", "loop", "rotation")
+"""The drives of [W] §5.4 — the marked-spot tour, laps of the predetermined trajectory, the rotation drive."""
 HEIGHTS = (1.10, 1.12, 1.14, 1.16, 1.18, 1.20, 1.22, 1.24, 1.26, 1.28, 1.30)
 """[W] Table 5.3's emitter–receiver heights (m)."""
 SPEEDS = (0.10, 0.15, 0.20, 0.25, 0.30)
 """[W] §5.4.4's speeds (m/s; 0.20 is that of §5.4.1)."""
 FAILED_CODE = 1
-"""The repeated ID whose two emitters fail in ``ir-failure`` (ours: [W] Fig. 5.16 does not name it)."""
+"""The repeated ID whose two emitters fail in ``ir-failure`` (ours, as [W] Fig. 5.16 does not name it)."""
 LEAD_IN = ((0.3, 0.8), (2.9, 0.8))
-"""The spot tour's lead-in (m): from [W]'s start, (300, 800) mm, east under the three unique arrays."""
+"""The spot tour's lead-in (m), from [W]'s start, (300, 800) mm, east under the three unique arrays."""
 ROTATION_SCORED_FROM = 10.0
 """``ir-rotation`` scores the steps from 10 s on, after the robot has passed its second emitter
 (the heading is unobservable until then: :mod:`jaxnav.localization.ir_mcl`, "Heading")."""
@@ -102,8 +104,8 @@ class IRSetting:
     """One simulated IR experiment (hashable).
 
     Attributes:
-        layout: ``"proposed"`` (:func:`jaxnav.models.ir_world.experiment_layout`) or
-            ``"unique-11"`` (:func:`jaxnav.models.ir_world.unique11_layout`).
+        layout: ``"proposed"`` (:func:`jaxnav.sim.ir_world.experiment_layout`) or
+            ``"unique-11"`` (:func:`jaxnav.sim.ir_world.unique11_layout`).
         failed_code: a repeated ID (frequency code 1–9) whose emitters are
             switched off in the simulator (the filter keeps the full map), or 0.
         height: emitter–receiver height of the simulated receiver (m); the
@@ -152,7 +154,7 @@ class IRSetting:
 
 
 QUICK = dict(spots=(7, 3), dwell=2.0, laps=2)
-"""What the quick variants change: 21 spots with 2 s stays, two laps (the second scored); [W]'s 1,000 particles."""
+"""What the quick variants change — 21 spots with 2 s stays, two laps (the second scored); [W]'s 1,000 particles."""
 
 
 class DriveInputs(NamedTuple):
@@ -497,7 +499,7 @@ def plot_drive(drive: Drive, path: str | None = None, ax: Any = None) -> Any:
     ax.set_ylabel("y (m)")
     s = drive.setting
     ax.set_title(f"{s.drive}, {s.layout} layout, height {s.height:g} m, {1000 * s.speed:.0f} mm/s", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0), title="numbers: emitter IDs", title_fontsize=7)
     if own:
         fig.tight_layout()
         if path is not None:

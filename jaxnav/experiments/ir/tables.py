@@ -36,12 +36,14 @@ maxima, median, restarts, start) and counted in the row's ``diverged_runs``
 Batching: the runs of a chunk are evaluated one after the other inside one
 compiled ``lax.map`` (``Experiment.batching = "map"``): the filter's start is
 a ``lax.cond`` whose 16,000-candidate re-draw a ``vmap`` would compute at
-every step (measured 2.25 s against 0.38 s per 600-step run). Cells that
+every step, which makes a vmapped run several times slower. Cells that
 differ only in arrays (height, layout, path, speed) share one compilation.
 """
 
 from __future__ import annotations
 
+import re
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -275,18 +277,65 @@ def markdown_table(result: dict) -> str:
     return report.markdown(heads, rows, title, _footer(result))
 
 
-def plot_table(result: dict, path: str) -> None:
-    """dr per row: average (bar, 95 % interval) and mean maximum (dot), [W]'s as red marks."""
+_AXIS = {
+    "speed_mm_s": "robot speed",
+    "height_m": "emitter-receiver height (eq. 5.3 calibrated at 1.2 m)",
+    "installation_mm": "sd of the emitters' installation error, per axis",
+}
+"""The x-axis label of a sweep, by the row key its rows carry."""
+
+
+def _quick_text(rows: Sequence[dict]) -> str:
+    """What the quick variant of ``rows`` cuts, by their drives (the rotation drive runs in full)."""
+    drives = {r["setting"]["drive"] for r in rows}
+    parts = []
+    if "spots" in drives:
+        full = IRSetting().spots
+        parts.append(
+            f"{QUICK['spots'][0] * QUICK['spots'][1]} of the {full[0] * full[1]} spots, {QUICK['dwell']:g} s stays"
+        )
+    if "loop" in drives:
+        parts.append(f"{QUICK['laps']} laps, the second scored")
+    return ", ".join(parts) or "the full run's drive"
+
+
+def _wrap(text: str, width: int) -> str:
+    """``text`` wrapped at ``width`` characters, never inside a reference ("[W] §5.4.5, Fig. 5.16")."""
+    text = re.sub(r"(Fig\.|Table|\[[AW]\]|§[\d.]+,) ", "\\1\u00a0", text)
+    return textwrap.fill(text, width)
+
+
+def _plot_title(result: dict, width: int = 100) -> str:
+    """The plot's title: the experiment's, but the speed sweep names the speeds and laps its rows ran (the quick
+    variant runs two of the five speeds, two laps), and a quick variant says so."""
+    rows = result["rows"]
+    title = result["title"]
+    if rows and all("speed_mm_s" in r for r in rows):
+        speeds = sorted({float(r["speed_mm_s"]) for r in rows})
+        laps = QUICK["laps"] if result.get("quick") else _LOOP.laps
+        title = _SPEEDS_TITLE.format(speeds=", ".join(f"{v:g}" for v in speeds), laps=laps)
+    head = _wrap(f"{result['experiment']}: {title}", width)
+    if result.get("quick"):
+        head += f"\nquick variant ({_quick_text(rows)}): not the full experiment"
+    return head
+
+
+def _draw_table(result: dict):
+    """The figure of :func:`plot_table`."""
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
     x = np.arange(len(rows))
-    fig, ax = plt.subplots(figsize=(max(6.0, 0.9 * len(rows) + 3), 4.2))
-    means = np.array([r["dr_mm"]["mean"] for r in rows])
-    lo = np.array([r["dr_mm"]["ci95"][0] for r in rows])
-    hi = np.array([r["dr_mm"]["ci95"][1] for r in rows])
-    ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours: average ({result['runs']} runs, 95 % CI)")
-    ax.errorbar(x, means, yerr=[means - lo, hi - means], fmt="none", color="k", capsize=3)
+    width = max(7.5, 0.9 * len(rows) + 3)
+    fig, ax = plt.subplots(figsize=(width, 5.0), layout="constrained")
+    means = np.array([r["dr_mm"]["mean"] for r in rows], float)
+    lo = np.array([r["dr_mm"]["ci95"][0] for r in rows], float)
+    hi = np.array([r["dr_mm"]["ci95"][1] for r in rows], float)
+    ax.bar(x, means, color="tab:blue", alpha=0.7, label=f"ours: average (mean of {result['runs']} runs)")
+    # The stored interval is mean ± t·s/√R, symmetric: with few, spread runs (one that lost the robot)
+    # it reaches below 0 mm, which no error can; the lower whisker stops at 0.
+    yerr = [means - np.maximum(lo, 0.0), hi - means]
+    ax.errorbar(x, means, yerr=yerr, fmt="none", color="k", capsize=3, label="95 % CI of the average")
     ax.plot(x, [r["dr_mm"]["max"] for r in rows], "o", color="tab:blue", label="ours: maximum (mean over runs)")
     for key, style, label in (("paper", "r_", "[W] average"), ("paper_max", "rx", "[W] maximum")):
         px = [i for i, r in enumerate(rows) if r["dr_mm"][key] is not None]
@@ -294,10 +343,23 @@ def plot_table(result: dict, path: str) -> None:
             ax.plot(px, [rows[i]["dr_mm"][key] for i in px], style, ms=18 if style == "r_" else 8, mew=3, label=label)
     ax.set_xticks(x)
     ax.set_xticklabels([r["row"] for r in rows], fontsize=8, rotation=30 if len(rows) > 6 else 0)
+    if axis := next((_AXIS[k] for k in _AXIS if rows and all(k in r for r in rows)), None):
+        ax.set_xlabel(axis)
     ax.set_ylabel("robot position error dr (mm)")
-    ax.legend(fontsize=8)
-    ax.set_title(f"{result['experiment']}: {result['title']}", fontsize=9)
-    fig.tight_layout()
+    ax.set_ylim(bottom=0)
+    # under the axes (inside, it would hide bars and markers); ours first, then [W]'s
+    handles, texts = ax.get_legend_handles_labels()
+    order = sorted(range(len(texts)), key=lambda i: (texts[i].startswith("[W]"), "maximum" in texts[i]))
+    fig.legend([handles[i] for i in order], [texts[i] for i in order], loc="outside lower center", ncol=3, fontsize=8)
+    fig.suptitle(_plot_title(result, int(13 * width)), fontsize=9)
+    return fig
+
+
+def plot_table(result: dict, path: str) -> None:
+    """dr per row: average (bar, 95 % interval) and mean maximum (dot), [W]'s as red marks."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_table(result)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -351,9 +413,12 @@ IR_FAILURE = ir_experiment(
     "them. Laps 2-3 of three are scored. [W] shows the path only.",
 )
 
+_SPEEDS_TITLE = "IR positioning at {speeds} mm/s, {laps} laps ([W] §5.4.4, Fig. 5.15)"
+"""``ir-speeds``' title; its plot fills in the speeds and laps of the rows it draws."""
+
 IR_SPEEDS = ir_experiment(
     "ir-speeds",
-    "IR positioning at 100-300 mm/s, three laps ([W] §5.4.4, Fig. 5.15)",
+    _SPEEDS_TITLE.format(speeds=f"{1000 * SPEEDS[0]:.0f}-{1000 * SPEEDS[-1]:.0f}", laps="three"),
     [IRRow("proposed", "mcl", replace(_LOOP, speed=v), label=f"{1000 * v:.0f} mm/s") for v in SPEEDS],
     notes="Laps 2-3 of three are scored. [W] shows the paths only and says speed does not change the accuracy.",
     row_key="speed_mm_s",
@@ -371,7 +436,7 @@ IR_ROTATION = ir_experiment(
 )
 
 INSTALLATION_SDS = (0.0, 0.01, 0.02, 0.03)
-"""``ir-installation``: sd of the emitters' installation error (m)."""
+"""The sds of the emitters' installation error in ``ir-installation`` (m)."""
 
 IR_INSTALLATION = ir_experiment(
     "ir-installation",

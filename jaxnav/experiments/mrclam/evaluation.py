@@ -60,6 +60,7 @@ __all__ = [
 ]
 
 ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
+"""The algorithms :func:`run_algorithm` runs, in the order of the tables."""
 NOTHING_MAPPED = f"{report.NA} (nothing mapped)"
 """How a map error is written when the run mapped no landmark."""
 
@@ -103,7 +104,7 @@ class AlgorithmResult(NamedTuple):
     """One algorithm on one sequence.
 
     Attributes:
-        name: algorithm name (one of :data:`ALGORITHMS`).
+        name: algorithm name (one of :data:`~jaxnav.experiments.mrclam.evaluation.ALGORITHMS`).
         estimates: ``[T, 3]`` pose estimates.
         landmarks: ``[M, 2]`` map estimate (SLAM) or None.
         seen: ``[M]`` bool, mapped landmarks (SLAM) or None.
@@ -237,7 +238,7 @@ def format_table(rows: Sequence[tuple[int, AlgorithmResult]]) -> str:
     """Markdown table of ``(robot, result)`` rows: RMSEs in mm and mrad as [W]'s tables print them.
 
     Localization filters have no map (:data:`jaxnav.experiments.report.NONE`); a SLAM run that
-    mapped no landmark has nothing to score (:data:`NOTHING_MAPPED`).
+    mapped no landmark has nothing to score (:data:`~jaxnav.experiments.mrclam.evaluation.NOTHING_MAPPED`).
     """
     heads = [
         "robot",
@@ -268,40 +269,63 @@ def format_table(rows: Sequence[tuple[int, AlgorithmResult]]) -> str:
     return report.markdown(heads, cells)
 
 
-def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], path: str) -> None:
-    """Paths (left) and SLAM maps (right) against the ground truth; writes a PNG to ``path``."""
+_COLORS = {
+    "dead_reckoning": "tab:gray",
+    "ekf": "tab:orange",
+    "ukf": "tab:green",
+    "mcl": "tab:red",
+    "ekf_slam": "tab:purple",
+    "fastslam1": "tab:brown",
+    "fastslam2": "tab:blue",
+}
+"""One colour per algorithm, in both panels and for a SLAM map's landmarks."""
+_MAP_MARKERS = {"ekf_slam": "o", "fastslam1": "s", "fastslam2": "^"}
+
+
+def _draw_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult]):
+    """The figure of :func:`plot_robot`."""
     import matplotlib.pyplot as plt
 
-    fig, (ax_path, ax_err) = plt.subplots(1, 2, figsize=(13, 5.5))
+    fig, (ax_path, ax_err) = plt.subplots(1, 2, figsize=(14, 6.2), layout="constrained")
     truth = np.asarray(seq.true_poses)
     lms = np.asarray(seq.landmarks)
     ax_path.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="Vicon ground truth")
     ax_path.plot(lms[:, 0], lms[:, 1], "k*", ms=12, label="landmarks (surveyed)")
     times = np.arange(truth.shape[0]) * seq.dt
-    markers = {"ekf_slam": "o", "fastslam1": "s", "fastslam2": "^"}
-    for r in results:
-        ax_path.plot(r.estimates[:, 0], r.estimates[:, 1], lw=1, label=r.name)
+    for i, r in enumerate(results):
+        color = _COLORS.get(r.name, f"C{i}")
+        ax_path.plot(r.estimates[:, 0], r.estimates[:, 1], color=color, lw=1, label=r.name)
         if r.landmarks is not None:
             seen = r.seen.astype(bool)
             ax_path.plot(
                 r.landmarks[seen, 0],
                 r.landmarks[seen, 1],
-                markers.get(r.name, "x"),
+                _MAP_MARKERS.get(r.name, "x"),
+                color=color,
                 mfc="none",
+                mew=1.5,
                 ms=8,
-                label=f"{r.name} map",
+                label=f"{r.name} map ({int(seen.sum())} of {lms.shape[0]} landmarks)",
             )
-        ax_err.plot(times, np.asarray(metrics.position_errors(r.estimates, truth)), lw=1, label=r.name)
+        ax_err.plot(times, np.asarray(metrics.position_errors(r.estimates, truth)), color=color, lw=1, label=r.name)
     ax_path.set_aspect("equal")
     ax_path.set_xlabel("x (m)")
     ax_path.set_ylabel("y (m)")
     ax_path.set_title(f"MRCLAM dataset 7, robot {seq.robot}: paths and maps")
-    ax_path.legend(fontsize=7, loc="best")
     ax_err.set_yscale("log")
     ax_err.set_xlabel("time (s)")
     ax_err.set_ylabel("position error (m)")
     ax_err.set_title("position error against Vicon")
-    ax_err.legend(fontsize=7)
-    fig.tight_layout()
+    ax_err.grid(alpha=0.3)
+    # one legend for both panels (an algorithm has one colour in both), beside them (inside, it would hide the map)
+    fig.legend(*ax_path.get_legend_handles_labels(), loc="outside right upper", fontsize=8)
+    return fig
+
+
+def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], path: str) -> None:
+    """Paths (left) and SLAM maps (right) against the ground truth; writes a PNG to ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_robot(seq, results)
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -36,6 +36,7 @@ runs, same keys) so that the test suite compiles one 3D function, not two.
 
 from __future__ import annotations
 
+import re
 import textwrap
 from collections.abc import Sequence
 from dataclasses import replace
@@ -243,22 +244,50 @@ _COLORS = {"rssi": "tab:red", "phase": "tab:blue", "combined": "tab:green"}
 _KERNEL_COLOR = "tab:purple"
 
 
+def _wrap(text: str, width: int) -> str:
+    """``text`` wrapped at ``width`` characters, never inside a reference ("[W] §5.4.5, Fig. 5.16")."""
+    text = re.sub(r"(Fig\.|Table|\[[AW]\]|§[\d.]+,) ", "\\1\u00a0", text)
+    return textwrap.fill(text, width)
+
+
+def _title(result: dict) -> str:
+    """``"NAME: title (R runs)"``, wrapped, with a line naming a quick variant (its numbers are not the experiment's)."""
+    head = _wrap(f"{result['experiment']}: {result['title']} ({result['runs']} runs)", 140)
+    if not result.get("quick"):
+        return head
+    rows = result["rows"]
+    steps = len(rows[0]["time_s"]) if rows else 0
+    return (
+        f"{head}\nquick variant ({QUICK['num_particles']} particles, {steps} steps of "
+        f"{result.get('step_period_s', 0):.2g} s): not the full experiment"
+    )
+
+
 def _band(ax, r, color, label):
     t = np.asarray(r["time_s"])
-    m = np.asarray(r["rmse_m"]["mean"])
-    ci = np.asarray(r["rmse_m"]["ci95"])
+    m = np.asarray(r["rmse_m"]["mean"], float)
+    ci = np.asarray(r["rmse_m"]["ci95"], float)
     ax.plot(t, m, "-", color=color, lw=1.3, label=label)
-    ax.fill_between(t, ci[:, 0], ci[:, 1], color=color, alpha=0.15, lw=0)
+    # an RMSE is ≥ 0: an interval's lower end below 0 is drawn at 0
+    ax.fill_between(t, np.maximum(ci[:, 0], 0.0), ci[:, 1], color=color, alpha=0.15, lw=0)
 
 
-def plot_curves(result: dict, path: str) -> None:
-    """fig-5.5/5.6: RMSE over time, one panel per multipath, three weightings, [A]'s values as dashed lines."""
+def _legend_below(ax, ncol: int = 2) -> None:
+    """The panel's legend, under it (inside, it would hide curves)."""
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=ncol)
+
+
+def _draw_curves(result: dict):
+    """The figure of :func:`plot_curves`."""
     import matplotlib.pyplot as plt
 
     panels = [m for m in MULTIPATHS if any(r["setting"]["multipath"] == m for r in result["rows"])]
-    fig, axes = plt.subplots(1, len(panels), figsize=(6.2 * len(panels), 4.4), squeeze=False, sharey=True)
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(6.2 * len(panels), 5.6), squeeze=False, sharey=True, layout="constrained"
+    )
     for ax, mp in zip(axes[0], panels):
         rows = [r for r in result["rows"] if r["setting"]["multipath"] == mp]
+        papers = {}  # [A]'s value per method: the kernel-refresh row has the Gaussian one's
         for r in rows:
             refresh = r["setting"].get("refresh", "gaussian")
             c = _COLORS[r["method"]] if refresh == "gaussian" else _KERNEL_COLOR
@@ -266,27 +295,47 @@ def plot_curves(result: dict, path: str) -> None:
             name = r["method"] if refresh == "gaussian" else f"{r['method']}, {refresh} refresh"
             _band(ax, r, c, f"{name} (final {f['mean']:.2f} m)")
             if f["paper"] is not None:
-                ax.axhline(f["paper"], color=c, ls="--", lw=1.0, alpha=0.8)
+                papers.setdefault(r["method"], f["paper"])
+        by_value: dict[float, list[str]] = {}
+        for method, value in papers.items():
+            by_value.setdefault(value, []).append(method)
+        for value, methods in by_value.items():  # one line per value: [A] gives 0.20 m for all three in light
+            color = _COLORS[methods[0]] if len(methods) == 1 else "0.3"
+            label = f"[A] {', '.join(methods)}: {value:.2f} m"
+            ax.axhline(value, color=color, ls="--", lw=1.0, alpha=0.8, label=label)
         dims = rows[0]["setting"]["dims"]
         ax.axhline(result["prior_rmse_m"][str(dims)], color="0.4", ls=":", lw=1.0, label="uniform prior")
         ax.set_title(f"{mp} multipath, {dims}D, anchor {rows[0]['setting']['anchor_distance_m']:g} m", fontsize=9)
         ax.set_xlabel("time (s)")
-        ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="upper right")
-    axes[0][0].set_ylabel("RMSE (m), 95 % CI; dashed: [A]")
-    fig.suptitle(f"{result['experiment']}: {result['title']} ({result['runs']} runs)", fontsize=9)
-    fig.tight_layout()
+        _legend_below(ax)
+    # the panels share y: fix it once to hold every panel's curves (a limit set on the first panel
+    # alone stops autoscaling and would cut the others' curves off); a few runs' wide bands may run off the top
+    top = max(
+        [float(np.nanmax(np.asarray(r["rmse_m"]["mean"], float))) for r in result["rows"]]
+        + [float(v) for v in result["prior_rmse_m"].values()]
+    )
+    axes[0][0].set_ylim(0, 1.15 * top)
+    axes[0][0].set_ylabel("RMSE (m); shaded: 95 % CI")
+    fig.suptitle(_title(result), fontsize=9)
+    return fig
+
+
+def plot_curves(result: dict, path: str) -> None:
+    """fig-5.5/5.6: RMSE over time, one panel per multipath, three weightings, [A]'s values as dashed lines."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_curves(result)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def plot_anchor(result: dict, path: str) -> None:
-    """fig-5.3: RMSE over time per anchor distance, and the final RMSE against the distance (λ/2 marked)."""
+def _draw_anchor(result: dict):
+    """The figure of :func:`plot_anchor`."""
     import matplotlib.pyplot as plt
 
     rows = result["rows"]
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.4))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.6), layout="constrained")
     cmap = plt.get_cmap("viridis")
     for i, r in enumerate(rows):
         _band(
@@ -297,15 +346,28 @@ def plot_anchor(result: dict, path: str) -> None:
         )
     ax.axhline(result["prior_rmse_m"]["3"], color="0.4", ls=":", lw=1.0, label="uniform prior")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("RMSE (m), 95 % CI")
+    ax.set_ylabel("RMSE (m); shaded: 95 % CI")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, title="anchor-to-tag", title_fontsize=7)
+    ax.legend(
+        fontsize=7,
+        title="anchor-to-tag distance",
+        title_fontsize=7,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.13),
+        ncol=3,
+    )
     x = np.array([r["setting"]["anchor_distance_lambda"] for r in rows])
-    m = np.array([r["final_rmse_m"]["mean"] for r in rows])
-    ci = np.array([r["final_rmse_m"]["ci95"] for r in rows])
+    m = np.array([r["final_rmse_m"]["mean"] for r in rows], float)
+    ci = np.array([r["final_rmse_m"]["ci95"] for r in rows], float)
     bx.errorbar(
-        x, m, yerr=[m - ci[:, 0], ci[:, 1] - m], fmt="o-", color="tab:red", capsize=3, label="RSSI-only, final RMSE"
+        x,
+        m,
+        yerr=[m - np.maximum(ci[:, 0], 0.0), ci[:, 1] - m],  # an RMSE is ≥ 0: the lower whisker stops at 0
+        fmt="o-",
+        color="tab:red",
+        capsize=3,
+        label="RSSI-only, final RMSE (95 % CI)",
     )
     med = [_robust(result, r)[0] for r in rows]
     if all(v is not None for v in med):
@@ -320,9 +382,25 @@ def plot_anchor(result: dict, path: str) -> None:
     bx.set_ylabel("final RMSE (m)")
     bx.set_ylim(bottom=0)
     bx.grid(alpha=0.3)
-    bx.legend(fontsize=7)
-    fig.suptitle(f"{result['experiment']}: {result['title']} ({result['runs']} runs)", fontsize=9)
-    fig.tight_layout()
+    handles, texts = bx.get_legend_handles_labels()
+    order = sorted(range(len(texts)), key=lambda i: "final RMSE" not in texts[i])  # the curve first
+    bx.legend(
+        [handles[i] for i in order],
+        [texts[i] for i in order],
+        fontsize=7,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.13),
+        ncol=2,
+    )
+    fig.suptitle(_title(result), fontsize=9)
+    return fig
+
+
+def plot_anchor(result: dict, path: str) -> None:
+    """fig-5.3: RMSE over time per anchor distance, and the final RMSE against the distance (λ/2 marked)."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_anchor(result)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -4,8 +4,8 @@ The settings, runs and RMSE summaries of [A] §5.2's experiments; the
 experiments themselves (Figs. 5.3, 5.5, 5.6 and ``uhf-refresh``) are in
 :mod:`jaxnav.experiments.uhf.figures`.
 
-One run (:func:`run_once`; all choices ours, [A] gives no geometry)
--------------------------------------------------------------------
+.. rubric:: One run (:func:`run_once`; all choices ours, [A] gives no geometry)
+
 * The tag is drawn uniformly from the run key inside :data:`~jaxnav.sim.uhf_reader.SEARCH_BOX_A`
   shrunk by :data:`MARGIN` = 0.3 m on every side (not at the box centre: the
   uniform prior's mean sits there, which would flatter every method); its
@@ -37,8 +37,8 @@ One run (:func:`run_once`; all choices ours, [A] gives no geometry)
 * The per-run result is the position error ``‖p̂_t − p‖`` over time (m; in
   2D over x, y only: the height is known, its error is 0).
 
-Summaries (:func:`rmse_summary`)
---------------------------------
+.. rubric:: Summaries (:func:`rmse_summary`)
+
 ``RMSE(t) = √(mean over runs of err_r(t)²)``. Its 95 % interval is the
 Student-t interval of the mean squared error over the runs
 (:func:`jaxnav.experiments.stats.mean_ci`'s ``mean ± t_{0.975, R−1}·s/√R``, on
@@ -110,7 +110,7 @@ __all__ = [
 ]
 
 WAVELENGTH = U.A_WAVELENGTH
-"""λ = 0.173 m, as [A] §5.2 states (SPEC §4: probably λ/2 of an 866 MHz reader; we use [A]'s number)."""
+"""λ = 0.173 m, as [A] §5.2 states (probably λ/2 of an 866 MHz reader; we use [A]'s number)."""
 MARGIN = 0.3
 """The tag is drawn uniformly in the search box shrunk by this much (m) on every side."""
 SPEED = 0.2
@@ -175,13 +175,13 @@ class UHFSetting:
 
     @property
     def step_period(self) -> float:
-        """Seconds per step: the pass spacing over the speed."""
+        """Seconds per step, the pass spacing over the speed."""
         lo, hi = S.SEARCH_BOX_A
         return float(hi[0] - lo[0]) / (self.steps_per_pass - 1) / self.speed
 
 
 QUICK = dict(num_particles=300, steps_per_pass=21)
-"""What the quick variants change: 300 particles, a pass spacing of 0.1 m (97 steps of 0.5 s)."""
+"""What the quick variants change (300 particles and a pass spacing of 0.1 m, 97 steps of 0.5 s)."""
 
 
 class UHFInputs(NamedTuple):

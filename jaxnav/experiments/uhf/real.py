@@ -1,15 +1,15 @@
 """Tag localization ([A] Alg. 6) on the AdaRF real reads: three tags, three weightings, scored against the ground truth.
 
-Overview
---------
+**Overview**
+
 For each experiment of :mod:`jaxnav.io.adarf` and each of its three target
 tags, :func:`localize` runs :func:`jaxnav.localization.rfid_tag.run` in 2D
 (the tag height is known: the data are planar) over the 50 aperture points,
 with RSSI-only, phase-only and combined weights, and scores the final
 estimate against the tag's ground-truth position.
 
-The choices (ours; [A] localized no public data)
-------------------------------------------------
+**The choices** (ours; [A] localized no public data)
+
 * **Reads**: :func:`jaxnav.io.adarf.to_uhf_reads` with the 8 channels
   aligned and ``reads_per_channel`` reads of each per aperture point.
 * **Search box** ``x ∈ [−0.25, 1.25]``, ``y ∈ [0.25, 1.50]`` m: the 1 m
@@ -30,7 +30,7 @@ The choices (ours; [A] localized no public data)
 * ``σ_phase = 0.1 λ`` (:data:`~jaxnav.models.uhf_rfid.DEFAULT_PHASE_SIGMA_FRACTION`,
   [A]'s range 0.05–0.2 λ), not tuned on these data.
 
-What to expect (``SOURCE.md``): from a 1 m linear aperture the position along
+What to expect, as the dataset's description says: from a 1 m linear aperture the position along
 the track is observable to a few cm, the depth ``Y`` only weakly.
 """
 
@@ -73,8 +73,9 @@ ANTENNA = U.AntennaParams(g0=10.0**0.8, g_sll=10.0**-0.2, g_bll=10.0**-1.2, phi_
 """DEFAULT_ANTENNA's gains with a ±60° main lobe (module docstring)."""
 
 BOX_LO = (-0.25, 0.25)
+"""The lower corner ``(x, y)`` of the 2D search box (m; module docstring)."""
 BOX_HI = (1.25, 1.50)
-"""The 2D search box (m), module docstring."""
+"""The upper corner ``(x, y)`` of the 2D search box (m; module docstring)."""
 
 ANCHOR_OF = (1, 0, 1)
 """The anchor tag whose reads give (k, θ) for each target tag."""
@@ -268,19 +269,42 @@ def format_results(results: Sequence[TagResult]) -> str:
     return "\n".join([report.text(columns, rows, rule=False), *(n for n in notes if n)])
 
 
-def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray | None = None) -> None:
-    """Two panels: the final estimates of every run beside the truth and the antenna track; error over the aperture."""
+_TAG_STYLES = ("-", "--", ":")
+"""The line style of each target tag in the error panel (the colour is the weighting's)."""
+
+
+def _tag_name(tag: int) -> str:
+    return f"tag {tag} (EPC …{adarf.TARGET_EPCS[tag][-4:]})"
+
+
+def _draw_results(results: Sequence[TagResult], aperture_x: np.ndarray | None = None):
+    """The figure of :func:`plot_results`."""
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     colors = {"combined": "C0", "rssi": "C1", "phase": "C2"}
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5.6), layout="constrained")
     x = np.linspace(0.02, 1.0, adarf.NUM_POINTS) if aperture_x is None else aperture_x
-    ax.plot(x, np.zeros_like(x), "k.", ms=3, label="antenna track")
+    ax.plot(x, np.zeros_like(x), "k.", ms=3, label=f"antenna track ({len(x)} aperture points)")
+    ax.add_patch(
+        plt.Rectangle(
+            BOX_LO,
+            BOX_HI[0] - BOX_LO[0],
+            BOX_HI[1] - BOX_LO[1],
+            fill=False,
+            ls="--",
+            color="grey",
+            label="search box (the filter's uniform prior)",
+        )
+    )
     seen = set()
     for r in results:
-        ax.plot(*r.truth, "k*", ms=12, label=None if "truth" in seen else "ground truth")
-        seen.add("truth")
-        lab = None if r.weighting in seen else r.weighting
+        if r.tag not in seen:  # each tag's truth once, named
+            ax.plot(*r.truth, "k*", ms=12, label=None if seen else "ground truth")
+            ax.annotate(f"tag {r.tag}", r.truth, textcoords="offset points", xytext=(0, -14), ha="center", fontsize=8)
+            seen.add(r.tag)
+        lab = None if r.weighting in seen else f"{r.weighting}: final estimate per seed"
         seen.add(r.weighting)
         e = r.estimates[:, -1]
         ax.plot(e[:, 0], e[:, 1], "o", color=colors[r.weighting], mfc="none", label=lab)
@@ -289,21 +313,37 @@ def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray
         bx.plot(
             np.arange(1, adarf.NUM_POINTS + 1),
             r.errors.mean(0),
+            _TAG_STYLES[r.tag % len(_TAG_STYLES)],
             color=colors[r.weighting],
-            alpha=0.7,
-            label=None if f"err-{r.weighting}" in seen else r.weighting,
+            alpha=0.8,
+            label=f"{r.weighting}, {_tag_name(r.tag)}",
         )
-        seen.add(f"err-{r.weighting}")
-    ax.add_patch(plt.Rectangle(BOX_LO, BOX_HI[0] - BOX_LO[0], BOX_HI[1] - BOX_LO[1], fill=False, ls="--", color="grey"))
     ax.set(xlabel="x (m)", ylabel="y (m)", title=f"{results[0].experiment}: final estimates", aspect="equal")
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+    seeds = results[0].errors.shape[0]
     bx.set(
         xlabel="aperture points read",
         ylabel="error (m)",
-        title="error after each point (mean over seeds)",
+        title=f"error after each point (mean over {seeds} seed{'s' if seeds > 1 else ''})",
         yscale="log",
     )
-    bx.legend(fontsize=8)
-    fig.tight_layout()
+    bx.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    bx.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    bx.yaxis.set_minor_formatter(NullFormatter())
+    bx.grid(alpha=0.3)
+    # nine lines: a colour per weighting, a line style per tag, explained apart rather than one by one
+    weightings = list(dict.fromkeys(r.weighting for r in results))
+    tags = sorted({r.tag for r in results})
+    handles = [Line2D([], [], color=colors[w], label=w) for w in weightings]
+    handles += [Line2D([], [], color="k", ls=_TAG_STYLES[t % len(_TAG_STYLES)], label=_tag_name(t)) for t in tags]
+    bx.legend(handles=handles, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2)
+    return fig
+
+
+def plot_results(results: Sequence[TagResult], path: str, aperture_x: np.ndarray | None = None) -> None:
+    """Two panels: the final estimates of every run beside the truth and the antenna track; error over the aperture."""
+    import matplotlib.pyplot as plt
+
+    fig = _draw_results(results, aperture_x)
     fig.savefig(path, dpi=110)
     plt.close(fig)

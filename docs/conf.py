@@ -1,0 +1,126 @@
+"""Sphinx configuration of the jaxnav documentation.
+
+Build: ``sphinx-build -W --keep-going -n -b html docs docs/_build/html`` (the ``docs`` extra).
+Before reading the sources, :mod:`generate` writes the API pages, the reproduction pages and the
+benchmark pages into ``docs/_generated`` from the package and the committed JSON results, so every
+table and figure there comes from ``benchmarks/results/``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+sys.path[:0] = [ROOT, HERE]  # the package and the benchmark harness from this checkout; generate.py
+
+import importlib  # noqa: E402
+import typing  # noqa: E402
+
+import generate  # noqa: E402
+import jax  # noqa: E402
+
+import jaxnav  # noqa: E402
+
+project = "jaxnav"
+author = "jaxnav developers"
+copyright = "2026, jaxnav developers"
+release = jaxnav.__version__
+version = release
+
+extensions = [
+    "sphinx.ext.autodoc",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.mathjax",
+    "myst_nb",
+    "sphinx_copybutton",
+]
+
+myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
+myst_heading_anchors = 3
+nb_execution_mode = "off"  # the notebooks are committed with their outputs and executed by the test suite
+nb_merge_streams = True
+
+autodoc_member_order = "bysource"
+autodoc_typehints = "signature"
+# Defaults as written (``dtype=jnp.float32``), not as their repr, which Sphinx cannot parse.
+autodoc_preserve_defaults = True
+autodoc_default_options = {"members": True, "show-inheritance": True}
+napoleon_google_docstring = True
+napoleon_numpy_docstring = False
+napoleon_use_rtype = False
+napoleon_attr_annotations = True
+
+# Every cross-reference inside jaxnav must resolve (-n). References to other projects' objects are not
+# checked: the build runs without a network, so their inventories cannot be fetched.
+nitpicky = True
+nitpick_ignore_regex = [
+    (r"py:.*", r"(jax|jaxlib|numpy|np|jnp|chex|optax|matplotlib|collections|typing|types|enum|dataclasses)(\..*)?"),
+    (r"py:.*", r"(Array|ArrayLike|PRNGKeyArray|PyTree|Any|Callable|Sequence|Mapping|Iterable|Iterator|NamedTuple)"),
+    (r"py:.*", r"(int|float|bool|str|bytes|dict|list|tuple|object|None|type|complex|Ellipsis)"),
+    (r"py:.*", r"(ValueError|TypeError|KeyError|FileNotFoundError|RuntimeError|OSError|ImportError)"),
+    (r"py:.*", r"(os|pathlib)(\..*)?"),
+]
+
+# reproductions/ and benchmarks/ hold the texts generate.py puts into the generated pages.
+exclude_patterns = ["_build", "**.ipynb_checkpoints", "jupyter_execute", "reproductions", "benchmarks"]
+source_suffix = {".md": "myst-nb", ".ipynb": "myst-nb", ".rst": "restructuredtext"}
+
+html_theme = "furo"
+html_title = f"jaxnav {release}"
+html_static_path = []
+html_theme_options = {
+    "source_repository": "",
+    "navigation_with_keys": True,
+}
+suppress_warnings = ["myst.header"]
+
+
+def _document_custom_derivatives() -> None:
+    """Document functions wrapped in ``jax.custom_jvp``/``custom_vjp`` (``fastmath.sincos``, …) as functions.
+
+    autodoc does not see them as routines and leaves them out of the module pages. The hook it asks is
+    private to Sphinx 9; with another version the build goes on without it (those few functions are
+    then missing from the API pages, and the references to them fail the build).
+    """
+    try:
+        from sphinx.ext.autodoc._dynamic import _member_finder
+    except ImportError:
+        return
+    best = _member_finder._best_object_type_for_member
+
+    def with_custom_derivatives(member, member_name, is_attr, *, parent_obj_type, parent_props):
+        if parent_obj_type == "module" and isinstance(member, (jax.custom_jvp, jax.custom_vjp)):
+            return "function"
+        return best(member, member_name, is_attr, parent_obj_type=parent_obj_type, parent_props=parent_props)
+
+    _member_finder._best_object_type_for_member = with_custom_derivatives
+
+
+_document_custom_derivatives()
+
+
+def _resolve_namedtuple_annotations(app) -> None:
+    """A NamedTuple's generated ``__new__`` keeps its string annotations unresolved (``lm.RangeBearingObs``,
+    ``tuple[int, ...]``), so the class signature would show text, not links: give it the resolved ones."""
+    for name in generate.public_modules():
+        module = importlib.import_module(name)
+        for obj in vars(module).values():
+            if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields") and obj.__module__ == name:
+                try:
+                    obj.__new__.__annotations__ = typing.get_type_hints(obj)
+                except (NameError, TypeError):  # an annotation that cannot be evaluated stays text
+                    continue
+
+
+def _skip_namedtuple_fields(app, what, name, obj, skip, options):
+    """NamedTuple fields are documented by their class's ``Attributes:`` section, not again as members."""
+    doc = getattr(obj, "__doc__", None) or ""
+    return True if what == "class" and doc.startswith("Alias for field number") else None
+
+
+def setup(app):
+    app.connect("builder-inited", lambda app: generate.main(HERE, ROOT))
+    app.connect("autodoc-skip-member", _skip_namedtuple_fields)
+    app.connect("builder-inited", _resolve_namedtuple_annotations)

@@ -1,0 +1,148 @@
+"""The README and the documentation: their code runs, their links resolve, they speak of the library only.
+
+The site itself is built by ``.ci/run`` (``sphinx-build -W -n``, then ``docs/check_links.py``); these
+tests cover what that build cannot see: that the Python examples run as written, that the README stays
+a front page, and the helpers the build relies on.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import pathlib
+import re
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+
+def _load(name: str, path: pathlib.Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _python_blocks(path: pathlib.Path) -> list[str]:
+    """The ```python fenced blocks of a Markdown file (illustrations use ```text or ```{code-block})."""
+    return re.findall(r"^```python\n(.*?)^```", path.read_text(), flags=re.S | re.M)
+
+
+def _hand_written_pages() -> list[pathlib.Path]:
+    pages = [ROOT / "README.md", ROOT / "benchmarks" / "README.md"]
+    pages += [p for p in DOCS.rglob("*.md") if "_generated" not in p.parts and "_build" not in p.parts]
+    return sorted(pages)
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/interface.md"])
+def test_python_examples_run_as_written(page, monkeypatch, tmp_path, capsys):
+    blocks = _python_blocks(ROOT / page)
+    assert blocks, f"{page} has no Python example"
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {"__name__": "__docs__"}
+    for block in blocks:  # one namespace per page: later blocks use what earlier ones defined
+        exec(compile(block, page, "exec"), namespace)
+
+
+def test_readme_is_a_front_page():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 200, f"README.md has {len(lines)} lines; the details belong in docs/"
+    text = "\n".join(lines)
+    for needed in ('pip install ".[plot]" && jaxnav demo', 'pip install -e ".[dev]" && python -m pytest'):
+        assert needed in text
+
+
+# Words about how the work was organised or files a user does not have; never about the library.
+_FORBIDDEN = re.compile(
+    r"this round|last round|previous round|earlier rounds?|target:? met|the issue|this issue|this session|"
+    r"ARCHITECTURE\.md|SPEC §|STYLE\.md|STYLE item|BENCHMARKS\.md|/work/|\.\./shared/BENCH",
+    re.I,
+)
+_COMMIT_HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
+
+
+@pytest.mark.parametrize("page", _hand_written_pages(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_pages_speak_of_the_library_only(page):
+    text = page.read_text()
+    hits = [m.group(0) for m in _FORBIDDEN.finditer(text)] + [
+        m.group(0) for m in _COMMIT_HASH.finditer(text) if not m.group(0).isdigit()
+    ]
+    assert not hits, f"{page.relative_to(ROOT)}: {hits}"
+
+
+def test_citation_file_names_the_package_version():
+    import jaxnav
+
+    cff = (ROOT / "CITATION.cff").read_text()
+    assert re.search(r'^version: "?([^"\n]+)"?$', cff, re.M).group(1) == jaxnav.__version__
+    for thesis in ("Technical University of Crete", "University of Fukui", "hdl.handle.net/10098/10572"):
+        assert thesis in cff
+
+
+def test_link_checker_finds_missing_files_and_fragments(tmp_path):
+    check = _load("check_links", DOCS / "check_links.py")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "index.html").write_text(
+        '<a href="sub/page.html#here">ok</a><a href="sub/page.html#gone">bad id</a>'
+        '<a href="missing.html">bad file</a><a href="https://example.org/x">external</a>'
+        '<img src="sub/pic.png?v=3"><a href="#top">self</a><p id="top"></p>'
+    )
+    (tmp_path / "sub" / "page.html").write_text('<h1 id="here">x</h1><a href="../index.html">up</a>')
+    (tmp_path / "sub" / "pic.png").write_bytes(b"")
+    bad = check.broken_links(str(tmp_path))
+    assert sorted(bad) == [
+        "index.html: missing.html (no such file)",
+        "index.html: sub/page.html#gone (no id 'gone' there)",
+    ]
+
+
+def test_thesis_summary_counts_values_against_intervals():
+    generate = _load("generate", DOCS / "generate.py")
+    result = {
+        "rows": [
+            {"x_mm": {"mean": 10.0, "ci95": [8.0, 12.0], "paper": 11.0}},  # inside
+            {"x_mm": {"mean": 10.0, "ci95": [8.0, 12.0], "paper": 20.0}},  # above
+            {
+                "x_mm": {"mean": 10.0, "ci95": [8.0, 12.0], "paper": 5.0},
+                "y": {"mean": 1.0, "ci95": [0.5, 1.5], "paper": None},
+            },
+        ]
+    }
+    text = generate.thesis_summary(result)
+    assert text.startswith("Of the 3 values the thesis reports, 1 lie inside our 95 % interval, 1 above it")
+    assert "and 1 below it" in text
+    assert generate.thesis_summary({"rows": [{"x": {"mean": 1.0, "ci95": [0.0, 2.0], "paper": None}}]}) == ""
+
+
+def test_benchmark_headers_name_the_machine_but_no_revision_or_local_path():
+    generate = _load("generate", DOCS / "generate.py")
+    header = (
+        "Measured on AMD EPYC, 2 cores, copy bandwidth 24.9 GB/s; jaxnav 74a1c12+dirty, jax 0.10.2. "
+        "Command: `python -m benchmarks.run --only W2 --out /tmp/x/after.json`."
+    )
+    text = generate._without_provenance(header, "speed/after_main.json")
+    assert text == (
+        "Measured on AMD EPYC, 2 cores, copy bandwidth 24.9 GB/s; jax 0.10.2. "
+        "Command: `python -m benchmarks.run --only W2 --out benchmarks/results/speed/after_main.json`."
+    )
+
+
+def test_every_public_module_gets_an_api_page():
+    generate = _load("generate", DOCS / "generate.py")
+    modules = generate.public_modules()
+    for name in ("jaxnav.core.resampling", "jaxnav.slam.ps_slam", "jaxnav.localization.rfid_tag", "jaxnav.cli"):
+        assert name in modules
+    assert not [m for m in modules if any(part.startswith("_") for part in m.split("."))]
+
+
+def test_every_registered_experiment_has_a_committed_full_result():
+    """The reproduction pages are generated from these files; a page below its run count says so."""
+    from jaxnav.experiments import registry
+
+    generate = _load("generate", DOCS / "generate.py")
+    for name in registry.names():
+        result = json.loads((ROOT / "benchmarks" / "results" / "experiments" / f"{name}.json").read_text())
+        assert result["experiment"] == name and result["quick"] is False and result["runs"] >= 1
+        assert generate.runs_needed(name, result) in (50, 100)

@@ -122,7 +122,7 @@ REFUSED = [
     (["uhf-real", "--weightings", ""], r"--weightings: no weighting in ''; choose"),
     (
         ["uhf-real", "--data", "{nowhere}"],
-        r"AdaRF UHF-RFID data not found at .*: pass --data <folder holding adarf-uhf-rfid-phase/>.*"
+        r"AdaRF UHF-RFID dataset not found at .*: pass --data <folder holding adarf-uhf-rfid-phase/>.*"
         r"downloaded from https://github\.com/dapowan/AdaRF",
     ),
     (

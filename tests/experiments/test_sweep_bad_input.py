@@ -161,7 +161,7 @@ def test_a_bad_checkpoint_is_refused_naming_the_file_and_fresh(good, tmp_path, c
 
 
 def test_a_checkpoint_without_its_chunk_size_is_only_read(good, tmp_path):
-    """Written before checkpoints recorded their chunk size: read when complete, refused when runs are missing."""
+    """A checkpoint that does not record its chunk size is read when complete, refused when runs are missing."""
     data = json.loads(good)
     del data["chunk_size"]
     path = tmp_path / "runs.json"
@@ -171,7 +171,7 @@ def test_a_checkpoint_without_its_chunk_size_is_only_read(good, tmp_path):
     with pytest.raises(ValueError) as err:
         sw.sweep(CELLS, RUNS + 2, KEY, str(path), chunk_size=CHUNK, progress=False)
     message = str(err.value)
-    assert message.startswith(f"{path}: ") and "recorded their chunk size" in message and "--fresh" in message
+    assert message.startswith(f"{path}: ") and "does not record its chunk size" in message and "--fresh" in message
 
 
 def test_another_chunk_size_is_refused_naming_both_sizes(good, tmp_path):
@@ -374,8 +374,8 @@ def test_a_checkpoint_null_reaches_the_written_table(tmp_path):
 
 
 def test_a_committed_full_size_checkpoint_still_reads(tmp_path):
-    """The committed full-size checkpoint of table-3.1 (one that does not record its chunk size) passes the
-    checks and gives the committed result again, with its diverged-run counts (none)."""
+    """The committed full-size checkpoint of table-3.1 passes the checks and gives the committed result
+    again, with its diverged-run counts (none)."""
     import pathlib
     import shutil
 

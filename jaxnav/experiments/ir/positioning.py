@@ -479,21 +479,25 @@ def plot_drive(drive: Drive, path: str | None = None, ax: Any = None) -> Any:
     if dark.any():
         ax.scatter(*pos[dark].T, marker="x", s=80, c="k", label="failed emitter", zorder=3)
     for p, name in zip(pos, ir.layout_names(lay)):
-        ax.annotate(name, p, textcoords="offset points", xytext=(6, 6), fontsize=7)
+        ax.annotate(name, p, textcoords="offset points", xytext=(6, 6), fontsize=8)
     truth = np.asarray(drive.sim.true_poses)
     est = np.asarray(drive.trace.estimate)
     started = np.asarray(drive.trace.started)
-    ax.plot(truth[:, 0], truth[:, 1], "k-", lw=1.0, label="true path")
+    # the true path on top, thinner than the estimate, so that both stay visible where they overlap
     ax.plot(
         np.where(started, est[:, 0], np.nan),
         np.where(started, est[:, 1], np.nan),
         "-",
         c="tab:blue",
-        lw=0.8,
-        label=f"IR MCL (dr {float(drive.mcl.dr_mm):.0f} mm)",
+        lw=1.6,
+        alpha=0.8,
+        label=f"IR MCL estimate (mean error {float(drive.mcl.dr_mm):.0f} mm)",
     )
     odo = np.asarray(drive.odometry)
-    ax.plot(odo[:, 0], odo[:, 1], "--", c="tab:red", lw=0.8, label=f"odometry (dr {float(drive.dead.dr_mm):.0f} mm)")
+    ax.plot(
+        odo[:, 0], odo[:, 1], "--", c="tab:red", lw=0.8, label=f"odometry (mean error {float(drive.dead.dr_mm):.0f} mm)"
+    )
+    ax.plot(truth[:, 0], truth[:, 1], "k-", lw=0.8, zorder=4, label="true path")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -503,6 +507,6 @@ def plot_drive(drive: Drive, path: str | None = None, ax: Any = None) -> Any:
     if own:
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path, dpi=110)
+            fig.savefig(path, dpi=110, bbox_inches="tight")  # the legend sits outside the axes, to the right
             plt.close(fig)
     return ax

@@ -280,6 +280,21 @@ _COLORS = {
 }
 """One colour per algorithm, in both panels and for a SLAM map's landmarks."""
 _MAP_MARKERS = {"ekf_slam": "o", "fastslam1": "s", "fastslam2": "^"}
+DISPLAY_NAMES = {
+    "dead_reckoning": "dead reckoning",
+    "ekf": "EKF",
+    "ukf": "UKF",
+    "mcl": "MCL",
+    "ekf_slam": "EKF-SLAM",
+    "fastslam1": "FastSLAM 1.0",
+    "fastslam2": "FastSLAM 2.0",
+}
+"""The algorithms' names in figures."""
+
+
+def display_name(name: str) -> str:
+    """An algorithm's name as a figure shows it (the name itself when it has none)."""
+    return DISPLAY_NAMES.get(name, name)
 
 
 def _draw_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult]):
@@ -294,7 +309,8 @@ def _draw_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult]):
     times = np.arange(truth.shape[0]) * seq.dt
     for i, r in enumerate(results):
         color = _COLORS.get(r.name, f"C{i}")
-        ax_path.plot(r.estimates[:, 0], r.estimates[:, 1], color=color, lw=1, label=r.name)
+        style = "--" if r.name == "dead_reckoning" else "-"  # grey and brown are close: dashed apart
+        ax_path.plot(r.estimates[:, 0], r.estimates[:, 1], style, color=color, lw=1, label=display_name(r.name))
         if r.landmarks is not None:
             seen = r.seen.astype(bool)
             ax_path.plot(
@@ -305,9 +321,16 @@ def _draw_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult]):
                 mfc="none",
                 mew=1.5,
                 ms=8,
-                label=f"{r.name} map ({int(seen.sum())} of {lms.shape[0]} landmarks)",
+                label=f"{display_name(r.name)} map ({int(seen.sum())} of {lms.shape[0]} landmarks, own frame)",
             )
-        ax_err.plot(times, np.asarray(metrics.position_errors(r.estimates, truth)), color=color, lw=1, label=r.name)
+        ax_err.plot(
+            times,
+            np.asarray(metrics.position_errors(r.estimates, truth)),
+            style,
+            color=color,
+            lw=1,
+            label=display_name(r.name),
+        )
     ax_path.set_aspect("equal")
     ax_path.set_xlabel("x (m)")
     ax_path.set_ylabel("y (m)")
@@ -323,7 +346,10 @@ def _draw_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult]):
 
 
 def plot_robot(seq: data.MRCLAMSequence, results: Sequence[AlgorithmResult], path: str) -> None:
-    """Paths (left) and SLAM maps (right) against the ground truth; writes a PNG to ``path``."""
+    """Paths and SLAM maps (left) against the ground truth, and the position error over time (right).
+
+    The maps are drawn as each SLAM filter estimated them, in its own frame, without aligning them to
+    the surveyed landmarks. Writes a PNG to ``path``."""
     import matplotlib.pyplot as plt
 
     fig = _draw_robot(seq, results)

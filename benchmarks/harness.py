@@ -72,6 +72,10 @@ class Timing:
             raise ValueError("no timing samples")
         return Timing(float(statistics.median(samples)), float(min(samples)), len(samples))
 
+    def per(self, steps: int) -> Timing:
+        """The timing of one of ``steps`` steps that each timed call made (median and minimum divided)."""
+        return Timing(self.median_s / steps, self.min_s / steps, self.repeats)
+
 
 class _GcOff:
     def __enter__(self):

@@ -172,18 +172,15 @@ def _jaxnav_run(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dic
     fn = lambda: jax.block_until_ready(rt.run(key, state0, cfg, params, reads))  # noqa: E731
     _, trace = fn()
     t = time_calls(fn, repeats=ctx.reps(3 if _big(n) else 10), warmup=0, budget_s=60.0, min_repeats=2)
-    _CACHE[("run", n)] = t.median_s / t_steps
+    _CACHE[("run", n)] = t.per(t_steps).median_s
     return make_row(
         NAME,
         "jaxnav",
         size,
         "in_scan",
-        None,
-        median_s=t.median_s / t_steps,
+        t.per(t_steps),
         compile_s=compile_s,
         floor_s=floor_s,
-        min_s=t.min_s / t_steps,
-        repeats=t.repeats,
         steps=t_steps,
         reads_per_step=J,
         resamplings=int(np.asarray(trace.resampled).sum()),
@@ -205,7 +202,7 @@ def _jaxnav_run_tags(ctx: Context, size: dict, g: int) -> dict:
     fn = lambda: jax.block_until_ready(rt.run_tags(key, cfg, params, reads, states))  # noqa: E731
     _, trace = fn()
     t = time_calls(fn, repeats=ctx.reps(10), warmup=0, budget_s=60.0, min_repeats=3)
-    per_step = t.median_s / t_steps
+    per_step = t.per(t_steps).median_s
     _CACHE[("run_tags", g)] = per_step
     extra = {}
     if g != 1 and ("run_tags", 1) in _CACHE:
@@ -217,11 +214,8 @@ def _jaxnav_run_tags(ctx: Context, size: dict, g: int) -> dict:
         "jaxnav",
         size,
         "in_scan",
-        None,
-        median_s=per_step,
+        t.per(t_steps),
         compile_s=compile_s,
-        min_s=t.min_s / t_steps,
-        repeats=t.repeats,
         steps=t_steps,
         reads_per_step=J,
         call="run_tags",
@@ -366,12 +360,9 @@ def _baseline_row(ctx: Context, size: dict, n: int, state0, floor_s: float) -> d
         "jax-baseline",
         size,
         "in_scan",
-        None,
-        median_s=t.median_s / t_steps,
+        t.per(t_steps),
         compile_s=compile_s,
         floor_s=floor_s,
-        min_s=t.min_s / t_steps,
-        repeats=t.repeats,
         steps=t_steps,
         reads_per_step=J,
         resamplings=int(np.asarray(resampled).sum()),

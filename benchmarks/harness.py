@@ -23,6 +23,7 @@ float64 NumPy array: bytes read + bytes written over the best time).
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import json
 import math
@@ -116,6 +117,27 @@ def time_calls(
             if budget_s is not None and len(samples) >= min_repeats and spent >= budget_s:
                 break
     return Timing.from_samples(samples)
+
+
+@contextlib.contextmanager
+def plain_forms():
+    """Inside: jaxnav's CPU fast paths give way to plain JAX (:func:`jaxnav.core.fastmath.use_plain_forms`).
+
+    For the ``jaxnav-plain`` rows, which time the same filter with ``jax.random``, ``jnp.sin``/``cos``,
+    ``jnp.arctan2`` and ``jnp.cumsum`` beside the ``jaxnav`` row, so that each machine shows what the fast
+    paths buy there. JAX's caches are cleared on entry and exit (the switch is read when tracing).
+    """
+    import jax
+
+    from jaxnav.core import fastmath
+
+    fastmath.use_plain_forms(True)
+    jax.clear_caches()
+    try:
+        yield
+    finally:
+        fastmath.use_plain_forms(False)
+        jax.clear_caches()
 
 
 def time_compile(jitted: Any, *args: Any, **kwargs: Any) -> tuple[float, Any]:

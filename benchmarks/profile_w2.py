@@ -27,6 +27,8 @@ and, to explain ``motion``:
 
 ``normal_threefry``  one ``jax.random.normal(key, (N, 3))`` with the default
                      threefry key (``velocity_sample`` draws two of these)
+``normal_jaxnav``    the same numbers from :func:`jaxnav.core.rng.normal` (what
+                     the motion models draw)
 ``normal_rbg``       the same draw with an ``impl="rbg"`` key
 
 The sum of motion … resample should be close to ``step``; the largest part
@@ -50,7 +52,7 @@ S = 20
 
 def _parts(n: int):
     from benchmarks.workloads.w2_mcl import INIT_SD, START, _world
-    from jaxnav.core import resampling, weights
+    from jaxnav.core import resampling, rng, weights
     from jaxnav.localization import mcl
     from jaxnav.models import landmarks as lm
     from jaxnav.models.motion import velocity_sample
@@ -81,6 +83,7 @@ def _parts(n: int):
         "gather": lambda k, x, lw, idx: jnp.take(x, idx, axis=0),
         "step": lambda k, x, lw, idx: mcl.kernel(k, mcl.MCLState(x, lw), config, params, ctrl, obs)[0].particles,
         "normal_threefry": lambda k, x, lw, idx: jax.random.normal(k, x.shape, x.dtype),
+        "normal_jaxnav": lambda k, x, lw, idx: rng.normal(k, x.shape, x.dtype),
         "normal_rbg": lambda k, x, lw, idx: jax.random.normal(
             jax.random.key(jax.random.bits(k, (), jnp.uint32), impl="rbg"), x.shape, x.dtype
         ),

@@ -24,8 +24,8 @@ import sys
 
 # Results files shown on the benchmark page, in order, with the title of their section.
 BENCHMARK_FILES = (
-    ("speed/after_main.json", "MCL and SLAM steps: W2, W2b, S2"),
-    ("speed/after_w1.json", "Resampling: W1"),
+    ("speed/rng_after.json", "MCL and SLAM steps: W2, W2b, S2"),
+    ("speed/rng_w1_after.json", "Resampling at N = 10³ and 10⁴: W1"),
     ("speed/after_w4.json", "Linear Kalman filter: W4"),
     ("classical.json", "Classical filters: W3 and W4"),
     ("hf_slam.json", "HF-RFID SLAM: S1 and S2"),

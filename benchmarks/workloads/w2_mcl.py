@@ -25,6 +25,11 @@ Implementations
   ``mcl.step.jitted`` (no validation), to expose the validation overhead.
 * ``jaxnav`` ``in_scan``: :func:`mcl.run` over the 50 steps (one ``lax.scan``),
   time / 50.
+* ``jaxnav-plain`` ``in_scan``: the same ``mcl.run`` with the library's CPU
+  fast paths switched off (:func:`jaxnav.core.fastmath.use_plain_forms`):
+  ``jax.random`` draws, ``jnp.sin``/``cos``/``arctan2`` and ``jnp.cumsum``. Its
+  ratio to the ``jaxnav`` row is what those paths buy on the machine that runs
+  the benchmark (they were chosen on XLA:CPU; another machine may differ).
 * ``jax-baseline`` ``in_scan``: a hand-written plain-JAX ``lax.scan`` of the
   same model (Euler motion, no guards, no pose estimate,
   ``jnp.searchsorted``). Not a peer: it shows what plain JAX reaches on the
@@ -60,6 +65,7 @@ float32), int32 indices::
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable
@@ -68,7 +74,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, skipped_row, time_calls
+from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, plain_forms, skipped_row, time_calls
 from benchmarks.peers import optional_import
 from benchmarks.workloads import Workload, register
 
@@ -230,23 +236,24 @@ def _jaxnav_per_call(ctx: Context, size: dict, n: int, state0, floor_s: float, i
     )
 
 
-def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) -> dict:
-    """``mcl.run`` over the 50 steps (one ``lax.scan``), time / 50."""
+def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float, plain: bool = False) -> dict:
+    """``mcl.run`` over the 50 steps (one ``lax.scan``), time / 50; ``plain``: the same with the
+    library's CPU fast paths off (:func:`benchmarks.harness.plain_forms`), the row ``jaxnav-plain``."""
     from jaxnav.localization import mcl
 
     _, _, _, sim = _world()
     config, params = _config_params(n)
     run_key = jax.random.key(2)
-    compile_s = ctx.compile_s(
-        (NAME, "run", n), mcl.run.jitted, run_key, state0, config, params, sim.controls, sim.observations
-    )
-    fn = lambda: jax.block_until_ready(mcl.run(run_key, state0, config, params, sim.controls, sim.observations))
-    big = n >= 10**6
-    # At 1e6 one run takes tens of seconds: no separate warm-up (the executable is compiled and cached).
-    t = time_calls(fn, repeats=ctx.reps(3 if big else 10), warmup=0 if big else 1, budget_s=60.0, min_repeats=2)
+    args = (run_key, state0, config, params, sim.controls, sim.observations)
+    with plain_forms() if plain else contextlib.nullcontext():
+        compile_s = ctx.compile_s((NAME, "run-plain" if plain else "run", n), mcl.run.jitted, *args)
+        fn = lambda: jax.block_until_ready(mcl.run(*args))
+        big = n >= 10**6
+        # At 1e6 one run takes tens of seconds: no separate warm-up (the executable is compiled and cached).
+        t = time_calls(fn, repeats=ctx.reps(3 if big else 10), warmup=0 if big else 1, budget_s=60.0, min_repeats=2)
     return make_row(
         NAME,
-        "jaxnav",
+        "jaxnav-plain" if plain else "jaxnav",
         size,
         "in_scan",
         t.per(T),
@@ -254,7 +261,8 @@ def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float) ->
         floor_s=floor_s,
         steps=T,
         dtype="float32",
-        note="mcl.run over 50 steps, time / 50",
+        note="mcl.run over 50 steps, time / 50"
+        + (", with jax.random, jnp trigonometry and jnp.cumsum instead of the CPU fast paths" if plain else ""),
     )
 
 
@@ -433,6 +441,14 @@ def run(ctx: Context, size: dict) -> list[dict]:
             ctx, NAME, impl, size, "per_call", lambda impl=impl: _jaxnav_per_call(ctx, size, n, state0, floor_s, impl)
         )
     rows += guarded(ctx, NAME, "jaxnav", size, "in_scan", lambda: _jaxnav_in_scan(ctx, size, n, state0, floor_s))
+    rows += guarded(
+        ctx,
+        NAME,
+        "jaxnav-plain",
+        size,
+        "in_scan",
+        lambda: _jaxnav_in_scan(ctx, size, n, state0, floor_s, plain=True),
+    )
     rows += guarded(ctx, NAME, "jax-baseline", size, "in_scan", lambda: _baseline_rows(ctx, size, n, state0, floor_s))
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, n, state0, floor_s, "numpy"))
     rows += guarded(

@@ -25,6 +25,8 @@ Implementations
   ``mcl.run.jitted`` over the runs: one compiled program runs the 50-step
   ``lax.scan`` of all R filters; time / 50. ``compile_s`` is that
   program's compile time.
+* ``jaxnav-plain`` ``in_scan``: the same program traced with the library's CPU
+  fast paths off (as W2's row of that name).
 * ``numpy`` ``per_call``: :class:`benchmarks.peers.numpy_mcl_batch.NumpyMCLBatch`,
   float32 ``[R, N]`` arrays, one NumPy call per operation for all runs and
   every row resampled by one ``searchsorted`` over the row-shifted cumulative
@@ -50,6 +52,7 @@ bandwidth``, the same on every row of a size.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from types import SimpleNamespace
 
@@ -57,7 +60,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, skipped_row, time_calls
+from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, plain_forms, skipped_row, time_calls
 from benchmarks.peers import optional_import
 from benchmarks.workloads import Workload, register
 from benchmarks.workloads import w2_mcl as w2
@@ -124,13 +127,14 @@ def initial_states(r: int, n: int):
 _RUN_ONE: dict = {}
 
 
-def run_one(n: int):
+def run_one(n: int, plain: bool = False):
     """``f(key, state, controls, observations, params) = mcl.run.jitted(key, state, config, params, …)`` for N.
 
-    One function object per N, so that :func:`jaxnav.core.batch.compiled_vmap`
-    (which caches on the function) compiles the batched program once.
+    One function object per N (and per ``plain``: the ``jaxnav-plain`` row's program is traced with the
+    fast paths off), so that :func:`jaxnav.core.batch.compiled_vmap` (which caches on the function)
+    compiles each batched program once.
     """
-    if n not in _RUN_ONE:
+    if (n, plain) not in _RUN_ONE:
         from jaxnav.localization import mcl
 
         config, _ = w2._config_params(n)
@@ -138,8 +142,8 @@ def run_one(n: int):
         def f(key, state, controls, observations, params):
             return mcl.run.jitted(key, state, config, params, controls, observations)
 
-        _RUN_ONE[n] = f
-    return _RUN_ONE[n]
+        _RUN_ONE[n, plain] = f
+    return _RUN_ONE[n, plain]
 
 
 class _CompiledVmap:
@@ -156,7 +160,7 @@ class _CompiledVmap:
         return SimpleNamespace(compile=lambda: batch.compiled_vmap(self.fn, *args, shared=self.shared))
 
 
-def jaxnav_batched(r: int, n: int, ctx: Context | None = None):
+def jaxnav_batched(r: int, n: int, ctx: Context | None = None, plain: bool = False):
     """``(run_all, compile_s)``: ``run_all()`` steps all R runs through the T steps and returns
     ``(final_states, traces)`` with a leading ``[R]`` axis (not blocked).
 
@@ -166,22 +170,24 @@ def jaxnav_batched(r: int, n: int, ctx: Context | None = None):
 
     _, _, _, sims = runs_world(r)
     _, params = w2._config_params(n)
-    fn = run_one(n)
+    fn = run_one(n, plain)
     args = (fold_in_keys(2, r), initial_states(r, n), sims.controls, sims.observations)
     compile_s = None
     if ctx is not None:
-        compile_s = ctx.compile_s((NAME, "run", r, n), _CompiledVmap(fn, (params,)), *args)
+        compile_s = ctx.compile_s((NAME, "run-plain" if plain else "run", r, n), _CompiledVmap(fn, (params,)), *args)
     exe = batch.compiled_vmap(fn, *args, shared=(params,))
     return (lambda: exe(*args, params)), compile_s
 
 
-def _jaxnav_in_scan(ctx: Context, size: dict, r: int, n: int, floor_s: float) -> dict:
-    run_all, compile_s = jaxnav_batched(r, n, ctx)
-    fn = lambda: jax.block_until_ready(run_all())
-    t = time_calls(fn, repeats=ctx.reps(10), warmup=1, budget_s=60.0, min_repeats=2)
+def _jaxnav_in_scan(ctx: Context, size: dict, r: int, n: int, floor_s: float, plain: bool = False) -> dict:
+    """The batched ``mcl.run``; ``plain``: traced with the CPU fast paths off (row ``jaxnav-plain``)."""
+    with plain_forms() if plain else contextlib.nullcontext():
+        run_all, compile_s = jaxnav_batched(r, n, ctx, plain)
+        fn = lambda: jax.block_until_ready(run_all())
+        t = time_calls(fn, repeats=ctx.reps(10), warmup=1, budget_s=60.0, min_repeats=2)
     return make_row(
         NAME,
-        "jaxnav",
+        "jaxnav-plain" if plain else "jaxnav",
         size,
         "in_scan",
         t.per(T),
@@ -189,7 +195,8 @@ def _jaxnav_in_scan(ctx: Context, size: dict, r: int, n: int, floor_s: float) ->
         floor_s=floor_s,
         steps=T,
         dtype="float32",
-        note=f"batch.compiled_vmap of mcl.run.jitted over {r} runs (one lax.scan of 50 steps), time / 50",
+        note=f"batch.compiled_vmap of mcl.run.jitted over {r} runs (one lax.scan of 50 steps), time / 50"
+        + (", with jax.random, jnp trigonometry and jnp.cumsum instead of the CPU fast paths" if plain else ""),
     )
 
 
@@ -301,6 +308,9 @@ def run(ctx: Context, size: dict) -> list[dict]:
     floor_s = ctx.floor(floor_bytes(r, n))
     rows = []
     rows += guarded(ctx, NAME, "jaxnav", size, "in_scan", lambda: _jaxnav_in_scan(ctx, size, r, n, floor_s))
+    rows += guarded(
+        ctx, NAME, "jaxnav-plain", size, "in_scan", lambda: _jaxnav_in_scan(ctx, size, r, n, floor_s, plain=True)
+    )
     rows += guarded(ctx, NAME, "numpy", size, "per_call", lambda: _numpy_row(ctx, size, r, n, floor_s))
     rows += guarded(ctx, NAME, "particles", size, "per_call", lambda: _particles_row(ctx, size, r, n, floor_s))
     return rows

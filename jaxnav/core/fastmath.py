@@ -17,6 +17,14 @@ of the correctly rounded value (tests compare against NumPy in float64);
 beyond any heading or bearing. float64 inputs fall back to ``jnp`` so that x64
 runs keep full precision. Derivatives are defined analytically
 (``custom_jvp``): ``d sin = cos``, ``d atan2(y, x) = (x dy − y dx)/(x² + y²)``.
+
+**Checking that a fast path still pays**
+
+These functions, and the random draws of :mod:`jaxnav.core.rng`, exist because of how
+XLA:CPU compiles the plain forms today. :func:`use_plain_forms` switches every one of them
+back to its plain JAX form, and the benchmarks' ``jaxnav-plain`` rows time the MCL step
+that way beside the ``jaxnav`` rows: on a machine or JAX version where the plain form wins,
+those rows show it.
 """
 
 from __future__ import annotations
@@ -37,7 +45,26 @@ __all__ = [
     "matmul",
     "small_sum",
     "blocked_int_cumsum",
+    "use_plain_forms",
 ]
+
+_plain = {"on": False}
+
+
+def use_plain_forms(on: bool | None = None) -> bool:
+    """Whether the CPU fast paths give way to their plain JAX forms; ``on`` sets it.
+
+    The fast paths are this module's ``sincos``, ``atan2`` and ``int_cumsum`` and the draws of
+    :mod:`jaxnav.core.rng`; their plain forms are ``jnp.sin``/``jnp.cos``, ``jnp.arctan2``,
+    ``jnp.cumsum`` and ``jax.random``. The switch exists to measure what each fast path buys
+    on a given machine (the benchmarks' ``jaxnav-plain`` rows). It is read when a function is
+    traced: call ``jax.clear_caches()`` after changing it so that compiled filters are traced
+    again. Results agree to rounding (the draws are identical).
+    """
+    if on is not None:
+        _plain["on"] = bool(on)
+    return _plain["on"]
+
 
 # Cody–Waite split of π/2: PIO2_1 has 8 significant bits, so k·PIO2_1 is exact for |k| < 2^16.
 _PIO2_1 = 1.5703125
@@ -66,7 +93,7 @@ def _sincos_f32(x: jax.Array) -> tuple[jax.Array, jax.Array]:
 @jax.custom_jvp
 def sincos(x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """``(sin x, cos x)`` sharing one range reduction (x in rad, ``|x| ≤ 8192`` for float32)."""
-    if not _is_f32(x):
+    if not _is_f32(x) or _plain["on"]:
         return jnp.sin(x), jnp.cos(x)
     return _sincos_f32(x)
 
@@ -113,7 +140,7 @@ def _atan2_f32(y: jax.Array, x: jax.Array) -> jax.Array:
 def atan2(y: jax.Array, x: jax.Array) -> jax.Array:
     """``atan2(y, x)`` in ``[-π, π]`` (rad) for finite inputs; ``atan2(0, 0) = 0``."""
     y, x = jnp.broadcast_arrays(y, x)
-    if not (_is_f32(x) and _is_f32(y)):
+    if not (_is_f32(x) and _is_f32(y)) or _plain["on"]:
         return jnp.arctan2(y, x)
     return _atan2_f32(y, x)
 
@@ -157,7 +184,7 @@ def int_cumsum(x: jax.Array, single_reader: bool = False) -> jax.Array:
     """
     if x.ndim != 1 or not jnp.issubdtype(x.dtype, jnp.integer) or jnp.dtype(x.dtype).itemsize != 4:
         raise TypeError(f"int_cumsum takes a 1-D int32 or uint32 array, got {x.dtype}{list(x.shape)}")
-    if x.shape[0] <= INT_SCAN_DIRECT:
+    if x.shape[0] <= INT_SCAN_DIRECT or _plain["on"]:
         return jnp.cumsum(x, dtype=x.dtype)
     cpu = _blocked_int_cumsum_added if single_reader else blocked_int_cumsum
     return jax.lax.platform_dependent(x, cpu=cpu, default=lambda v: jnp.cumsum(v, dtype=v.dtype))

@@ -68,7 +68,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxnav.core import fastmath, u64
+from jaxnav.core import fastmath, rng, u64
 from jaxnav.core import weights as _w
 from jaxnav.core.u64 import U64
 
@@ -266,14 +266,14 @@ def ancestors_from_counts(cumulative: jax.Array, num_samples: int, single_reader
 
 def _systematic_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
     """``#{s : (s + u)/M·Q < S_i}`` with one 32-bit uniform ``u = U/2³²``: ``k + [k < M and ⌊U·Q/2³²⌋ < r]``."""
-    offset = u64.mul_high(sc.total, jax.random.bits(key, (), _U32))
+    offset = u64.mul_high(sc.total, rng.bits(key, (), _U32))
     k, r = stratum_and_remainder(sc, cdf.cdf)
     return k + ((k < sc.count.astype(_I32)) & u64.less(offset, r)).astype(_I32)
 
 
 def _stratified_counts(key: jax.Array, cdf: IntegerCDF, sc: Scale) -> jax.Array:
     """As :func:`_systematic_counts` with one uniform ``U_s`` per stratum."""
-    u = jax.random.bits(key, (sc.size,), _U32)
+    u = rng.bits(key, (sc.size,), _U32)
     k, r = stratum_and_remainder(sc, cdf.cdf)
     offset = u64.mul_high(sc.total, jnp.take(u, k, mode="clip"))
     return k + ((k < sc.count.astype(_I32)) & u64.less(offset, r)).astype(_I32)
@@ -284,7 +284,7 @@ _SPACING_BITS = 20  # exponential spacings as integers: resolution 2⁻²⁰ of 
 
 def _spacings(key: jax.Array, size: int) -> jax.Array:
     """``⌊E·2²⁰⌋ + 1`` for i.i.d. ``E ~ Exp(1)`` (from float32 uniforms in ``[2⁻²⁴, 1)``, so ``E ≤ 16.7``)."""
-    e = -jnp.log(jax.random.uniform(key, (size,), jnp.float32, minval=2.0**-24, maxval=1.0))
+    e = -jnp.log(rng.uniform(key, (size,), jnp.float32, minval=2.0**-24, maxval=1.0))
     return (e * 2.0**_SPACING_BITS).astype(_U32) + 1
 
 
@@ -315,7 +315,7 @@ def sorted_uniform_draws(key: jax.Array, count: jax.Array, num_strata: jax.Array
     equally likely to 2⁻⁶⁴ and a fraction is exact to about 2⁻²⁴ of its stratum.
     """
     k_stratum, k_space, k_gap = jax.random.split(key, 3)
-    bits = jax.random.bits(k_stratum, (2, size), _U32)
+    bits = rng.bits(k_stratum, (2, size), _U32)
     stratum_of_draw = u64.mul_u32(U64(bits[0], bits[1]), jnp.asarray(num_strata).astype(_U32))[0].astype(_I32)
     active = jnp.arange(size, dtype=_I32) < count
     occupancy = jnp.zeros((size,), _I32).at[stratum_of_draw].add(active.astype(_I32), mode="drop")
@@ -643,7 +643,7 @@ def gaussian_draw(
     (:func:`jaxnav.core.weights.mean_from_probabilities`, :func:`~jaxnav.core.weights.cov_from_probabilities`).
     If ``Σ`` has no Cholesky factor the draw uses its diagonal.
     """
-    eps = jax.random.normal(key, (num_samples, mean.shape[-1]), mean.dtype)
+    eps = rng.normal(key, (num_samples, mean.shape[-1]), mean.dtype)
     return _w.wrap_columns(mean + eps @ _cholesky_with_fallback(cov, jitter).T, angle_dims)
 
 
@@ -695,7 +695,7 @@ def kernel_refresh(
     n, d = particles.shape
     h = silverman_bandwidth(n, d) if bandwidth is None else bandwidth
     chol = _cholesky_with_fallback(_moments(particles, log_weights, angle_dims)[1], jitter)
-    eps = jax.random.normal(key, (n, d), particles.dtype)
+    eps = rng.normal(key, (n, d), particles.dtype)
     return _w.wrap_columns(particles + h * (eps @ chol.T), angle_dims)
 
 

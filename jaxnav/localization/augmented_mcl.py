@@ -80,7 +80,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
@@ -308,11 +308,11 @@ def kernel(
     n = config.num_particles
     idx = resampling.get_resampler(config.resampling)(k_resample, w.norm.log_weights, n)
     resampled = jnp.take(particles, idx, axis=0, mode="clip")
-    inject = jax.random.uniform(k_mask, (n,), dtype) < p_inject
+    inject = rng.uniform(k_mask, (n,), dtype) < p_inject
     bounds = params.bounds.astype(dtype)
     lo = jnp.stack([bounds[0], bounds[2], jnp.asarray(-jnp.pi, dtype)])
     hi = jnp.stack([bounds[1], bounds[3], jnp.asarray(jnp.pi, dtype)])
-    random_poses = lo + jax.random.uniform(k_pose, (n, 3), dtype) * (hi - lo)
+    random_poses = lo + rng.uniform(k_pose, (n, 3), dtype) * (hi - lo)
     new_particles = jnp.where(inject[:, None], random_poses, resampled)
     new_particles = new_particles.at[:, 2].set(weights.wrap_angle(new_particles[:, 2]))
     uniform = jnp.full((n,), -np.log(n), dtype)

@@ -124,7 +124,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
@@ -432,7 +432,7 @@ def init(
         raise ValueError(f"area must be finite with x_min < x_max and y_min < y_max, got {area}")
     n = config.num_particles
     dtype = jnp.result_type(float)  # float64 under jax_enable_x64; the log-weights follow the particles
-    u = jax.random.uniform(key, (n, 3), dtype)
+    u = rng.uniform(key, (n, 3), dtype)
     lo = jnp.asarray([x0, y0, -math.pi], dtype)
     hi = jnp.asarray([x1, y1, math.pi], dtype)
     p = lo + u * (hi - lo)
@@ -470,11 +470,11 @@ def _redraw(key, headings, emitter_xy, offset, voltage, params):
     centres = (jnp.arange(_REDRAW_BINS, dtype=dtype) + 0.5) * width
     ll = jnp.maximum(ir.log_likelihood(voltage, centres, params.voltage, params.sigma_v), params.log_floor)
     logits = jnp.log(centres) + ll
-    b = resampling.inverse_cdf(jax.random.uniform(k_bin, (m,), dtype), jnp.exp(logits - jnp.max(logits))).astype(dtype)
+    b = resampling.inverse_cdf(rng.uniform(k_bin, (m,), dtype), jnp.exp(logits - jnp.max(logits))).astype(dtype)
     lo, hi = b * width, (b + 1) * width
-    u = jax.random.uniform(k_in, (m,), dtype)
+    u = rng.uniform(k_in, (m,), dtype)
     e_d = jnp.sqrt(lo * lo + u * (hi * hi - lo * lo))  # uniform in area between the bin's edges
-    phi = 2.0 * jnp.pi * jax.random.uniform(k_phi, (m,), dtype)
+    phi = 2.0 * jnp.pi * rng.uniform(k_phi, (m,), dtype)
     rx = emitter_xy + jnp.stack([e_d * jnp.cos(phi), e_d * jnp.sin(phi)], axis=-1)
     c, s = jnp.cos(headings), jnp.sin(headings)
     x = rx[:, 0] - (c * offset[0] - s * offset[1])
@@ -552,7 +552,7 @@ def kernel(
     def restart():
         k = config.redraw_factor
         k_head, k_cand = jax.random.split(k_redraw)
-        headings = jax.random.uniform(k_head, (k * n,), moved.dtype, -jnp.pi, jnp.pi)
+        headings = rng.uniform(k_head, (k * n,), moved.dtype, -jnp.pi, jnp.pi)
         cand = _redraw(k_cand, headings, layout.positions[carrier[r0]], params.offsets[r0], det.voltage[r0], params)
         idx, ok = _attribute(cand, jnp.full((k * n,), 1.0 / (k * n), cand.dtype), mask, known, params)
         loglik = _loglik(cand, idx, ok & not_r0, det.voltage, params)

@@ -96,7 +96,7 @@ import numpy as np
 from jax.scipy.special import ndtri
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
@@ -362,7 +362,7 @@ def kernel(
 
     # Candidates: N_max i.i.d. draws from the weighted set, in random order
     # (the exact inverse CDF of unsorted uniforms; masked slots have weight zero and are never drawn).
-    u = jax.random.uniform(k_cand, (n_max,), dtype)
+    u = rng.uniform(k_cand, (n_max,), dtype)
     cand_idx = resampling.inverse_cdf(u, probs)
     k_prefix = occupied_bins_per_prefix(jnp.take(particles, cand_idx, axis=0), config.bin_size)
     n_new = choose_count(k_prefix, config, dtype)

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite, materialize
 from jaxnav.core.validation import (
     check_bounds,
@@ -180,7 +180,7 @@ def init(
     check_shape("initial_sd", sd, (3,))
     check_nonnegative("initial_sd", sd)
     n = config.num_particles
-    eps = jax.random.normal(key, (n, 3), initial_pose.dtype)
+    eps = rng.normal(key, (n, 3), initial_pose.dtype)
     particles = initial_pose + eps * sd
     particles = particles.at[:, 2].set(weights.wrap_angle(particles[:, 2]))
     return MCLState(particles, _uniform(n, initial_pose.dtype))
@@ -194,7 +194,7 @@ def init_uniform(
     x0, x1, y0, y1 = check_bounds("bounds", bounds)
     n = config.num_particles
     dtype = jnp.result_type(float)  # float64 under jax_enable_x64, like the particles of init
-    u = jax.random.uniform(key, (n, 3), dtype)
+    u = rng.uniform(key, (n, 3), dtype)
     lo = jnp.asarray([x0, y0, -jnp.pi], dtype)
     hi = jnp.asarray([x1, y1, jnp.pi], dtype)
     return MCLState(lo + u * (hi - lo), _uniform(n, dtype))

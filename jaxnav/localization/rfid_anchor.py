@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import weights
+from jaxnav.core import rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
@@ -252,9 +252,9 @@ def init(key: jax.Array, config: RFIDAnchorConfig, params: RFIDAnchorParams) -> 
     _validate_params(params)
     m, g = config.num_particles, params.anchors.shape[0]
     k1, k2, k3 = jax.random.split(key, 3)
-    xyz = params.box_lo + jax.random.uniform(k1, (m, 3)) * (params.box_hi - params.box_lo)
-    phi = params.heading_range[0] + jax.random.uniform(k2, (m, 1)) * (params.heading_range[1] - params.heading_range[0])
-    off = jax.random.uniform(k3, (m, g), minval=-math.pi, maxval=math.pi)
+    xyz = params.box_lo + rng.uniform(k1, (m, 3)) * (params.box_hi - params.box_lo)
+    phi = params.heading_range[0] + rng.uniform(k2, (m, 1)) * (params.heading_range[1] - params.heading_range[0])
+    off = rng.uniform(k3, (m, g), minval=-math.pi, maxval=math.pi)
     parts = jnp.concatenate([xyz, weights.wrap_angle(phi), off], axis=-1)
     return RFIDAnchorState(parts, jnp.full((m,), -math.log(m), parts.dtype))
 
@@ -277,7 +277,7 @@ def kernel(
     k_move, k_off, k_res = jax.random.split(key, 3)
     p = state.particles
     pose = motion.increment_sample(k_move, p[:, :4], control, params.odometry_sd, config.odometry_frame)
-    offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * jax.random.normal(k_off, (m, g), p.dtype))
+    offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * rng.normal(k_off, (m, g), p.dtype))
     moved = jnp.concatenate([pose, offsets], axis=-1)
     u = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
     num_ignored = u.num_ignored

@@ -69,7 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import (
     check_choice,
@@ -258,10 +258,10 @@ def init(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams) -> RFIDTa
 def _init(key, config, params):
     m = config.num_particles
     k_pos, k_off = jax.random.split(key)
-    xyz = params.box_lo + jax.random.uniform(k_pos, (m, 3)) * (params.box_hi - params.box_lo)
+    xyz = params.box_lo + rng.uniform(k_pos, (m, 3)) * (params.box_hi - params.box_lo)
     if config.dims == 2:
         xyz = xyz.at[:, 2].set(params.tag_height)
-    off = jax.random.uniform(k_off, (m, 1), minval=-math.pi, maxval=math.pi)
+    off = rng.uniform(k_off, (m, 1), minval=-math.pi, maxval=math.pi)
     particles = jnp.concatenate([xyz, off], axis=-1)
     return RFIDTagState(particles, jnp.full((m,), -math.log(m), particles.dtype))
 

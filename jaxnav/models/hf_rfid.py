@@ -49,7 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath
+from jaxnav.core import fastmath, rng
 from jaxnav.core.kalman import UpdateResult, ensure_pd, symmetrize
 from jaxnav.core.validation import (
     check_finite,
@@ -279,7 +279,7 @@ def sample_in_footprint(
 ) -> jax.Array:
     """``[num, 2]`` world points uniform over the footprint of the reader at ``reader_offset``
     of a robot at ``pose`` ([W] Alg. 1 line 7: a new tag's particles)."""
-    u = jax.random.uniform(key, (num, 2), pose.dtype, -1.0, 1.0) * half_width
+    u = rng.uniform(key, (num, 2), pose.dtype, -1.0, 1.0) * half_width
     return world_frame(pose, reader_offset + u)
 
 

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath
+from jaxnav.core import fastmath, rng
 from jaxnav.core.validation import as_array, check_magnitude, check_nonnegative, check_shape, first_index, is_concrete
 from jaxnav.core.weights import wrap_angle
 
@@ -177,7 +177,7 @@ def _standard_normal_unless_zero(key: jax.Array, shape: tuple[int, ...], dtype, 
     """
     return jax.lax.cond(
         jnp.any(scales != 0),
-        lambda: jax.random.normal(key, shape, dtype),
+        lambda: rng.normal(key, shape, dtype),
         lambda: jnp.zeros(shape, dtype),
     )
 
@@ -265,7 +265,7 @@ def omni_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None = No
 def omni_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
     """[W] eq. 3.6: ``x_t = x_{t−1} + V·Δt + ε·Δt``, ``ε ~ N(0, σ)``, V in the world frame."""
     dt = control[..., 3:4]
-    eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
+    eps = rng.normal(key, poses.shape, poses.dtype) * params.sd
     new = poses + (control[..., :3] + eps) * dt
     return _wrap_heading(new)
 
@@ -287,7 +287,7 @@ def omni_body_mean(pose: jax.Array, control: jax.Array, params: OmniNoise | None
 def omni_body_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: OmniNoise) -> jax.Array:
     """[W] eq. 3.6 with robot-frame ``V``: the noisy body velocity ``V + ε`` is rotated by θ_{t−1}."""
     dt = control[..., 3:4]
-    eps = jax.random.normal(key, poses.shape, poses.dtype) * params.sd
+    eps = rng.normal(key, poses.shape, poses.dtype) * params.sd
     new = poses + _body_to_world(poses, control[..., :3] + eps) * dt
     return _wrap_heading(new)
 
@@ -317,7 +317,7 @@ def increment_sample(
     ``sd [4]`` (m, m, m, rad per step) is the noise of the move; ``frame`` as :func:`increment_mean`
     (the noise is added in the world frame either way).
     """
-    noise = jax.random.normal(key, poses.shape, poses.dtype) * sd
+    noise = rng.normal(key, poses.shape, poses.dtype) * sd
     return _increment(poses, increment, noise, frame)
 
 

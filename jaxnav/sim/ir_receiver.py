@@ -130,6 +130,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.validation import (
     check_finite,
     check_nonnegative,
@@ -444,7 +445,7 @@ def _sample_waveform(key, pose, layout, params, config):
     # one normal draw (much cheaper to compile than split + uniform + normal): the
     # first R·N values are the noise, the rest give each LED a uniform phase as the
     # angle of a standard 2-D Gaussian
-    z = jax.random.normal(key, (r * n + 2 * e * ir.NUM_CODES,), amp.dtype)
+    z = rng.normal(key, (r * n + 2 * e * ir.NUM_CODES,), amp.dtype)
     noise = z[: r * n].reshape(r, n)
     g = z[r * n :].reshape(2, e, ir.NUM_CODES)
     phase = jnp.arctan2(g[0], g[1])  # [E, 9], uniform on (-π, π]

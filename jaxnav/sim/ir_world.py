@@ -48,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     check_finite,
@@ -471,7 +472,7 @@ def _simulate(key, layout, poses, dt, receiver_params, odometry_error, config):
 
     def body(_, inputs):
         t, u, pose = inputs
-        eps = jax.random.normal(jax.random.fold_in(k_odo, t), (3,), u.dtype)
+        eps = rng.normal(jax.random.fold_in(k_odo, t), (3,), u.dtype)
         moving = jnp.any(u[:3] != 0.0)  # a robot standing still reads zero: its encoders do not turn
         v = u[:3] * (1.0 + odometry_error.scale) + jnp.where(moving, odometry_error.sd * eps, 0.0)
         det = ir_receiver.detect(jax.random.fold_in(k_det, t), pose, layout, receiver_params, config)

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.filter import check_key
 from jaxnav.core.validation import check_magnitude, check_positive, check_shape, float_array, is_concrete
 from jaxnav.core.weights import wrap_angle
@@ -118,7 +119,7 @@ def _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise
         k_move, k_obs = jax.random.split(k)
         pose = model.sample(k_move, pose, u, motion_noise)
         exact = lm.predict(pose[None, :], landmarks)
-        noise = jax.random.normal(k_obs, exact.shape, exact.dtype) * sensor_noise.sd
+        noise = rng.normal(k_obs, exact.shape, exact.dtype) * sensor_noise.sd
         z = exact + noise
         z = z.at[:, 1].set(wrap_angle(z[:, 1]))
         visible = (exact[:, 0] <= max_range) & (jnp.abs(exact[:, 1]) <= 0.5 * fov)

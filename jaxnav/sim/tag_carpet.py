@@ -86,6 +86,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     MAX_MAGNITUDE,
@@ -258,7 +259,7 @@ def make_carpet(
     # Drawn in a power-of-two block (then cut), so that carpets of similar size
     # share one compiled sampler instead of compiling one per tag count.
     block = max(64, 1 << (layout.num_tags - 1).bit_length())
-    errors = jax.random.uniform(key, (block, 2), _float_dtype(), -j, j)[: layout.num_tags]
+    errors = rng.uniform(key, (block, 2), _float_dtype(), -j, j)[: layout.num_tags]
     return TagCarpet(layout, errors)
 
 
@@ -550,7 +551,7 @@ class HFRun(NamedTuple):
 
 def _simulate(key, carpet, offsets, half_width, start_pose, controls, sd, kid_step, kid_pose, motion_model, side, n, k):
     dtype = controls.dtype
-    noise = jax.random.normal(key, (controls.shape[0], 3), dtype) * sd.astype(dtype)
+    noise = rng.normal(key, (controls.shape[0], 3), dtype) * sd.astype(dtype)
 
     def body(pose, inputs):
         t, u, eps = inputs

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models.motion import get_motion_model, omni_mean
 
@@ -107,8 +108,8 @@ def _random_controls(key, lo, hi, speed_lo, speed_hi, dt, start_pose, turn_rate,
         d = waypoint - pose[:2]
         dist = jnp.sqrt(jnp.sum(d * d))
         arrived = dist < speed * dt
-        waypoint = jnp.where(arrived, jax.random.uniform(k_w, (2,), lo.dtype, inner_lo, inner_hi), waypoint)
-        speed = jnp.where(arrived, jax.random.uniform(k_s, (), lo.dtype, speed_lo, speed_hi), speed)
+        waypoint = jnp.where(arrived, rng.uniform(k_w, (2,), lo.dtype, inner_lo, inner_hi), waypoint)
+        speed = jnp.where(arrived, rng.uniform(k_s, (), lo.dtype, speed_lo, speed_hi), speed)
         d = waypoint - pose[:2]
         dist = jnp.sqrt(jnp.sum(d * d))
         safe = jnp.where(dist > 0, dist, 1.0)

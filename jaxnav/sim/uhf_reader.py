@@ -121,6 +121,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     check_finite,
@@ -491,7 +492,7 @@ def anchor_position(
             raise ValueError(f"the anchor {q.tolist()} is outside the box / below the ground; choose another direction")
         return q
     tries = check_positive_int("tries", tries)
-    u = np.asarray(jax.random.normal(key, (tries, 3), jnp.float32), np.float64)
+    u = np.asarray(rng.normal(key, (tries, 3), jnp.float32), np.float64)
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-30)
     q = p + float(distance) * u
     ok = inside(q)
@@ -675,10 +676,10 @@ def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num
     # a_eff = 0 (a tag or reader on the ground) gives y = 0, masked below; keep sample_rssi's input > 0
     y = uhf_rfid.sample_rssi(k_fade, jnp.where(a_eff > 0, a_eff, 1.0), mp.gamma, (num_reads,))
     y = jnp.where(a_eff > 0, y, 0.0)
-    eps = mp.phase_sigma * jax.random.normal(k_phase, (num_reads,), y.dtype)
+    eps = mp.phase_sigma * rng.normal(k_phase, (num_reads,), y.dtype)
     phi = uhf_rfid.phase(dist, lam, offset + 2.0 * jnp.arctan2(im, re) + eps)
     p_inc = jnp.sqrt(y * channel.tx_power / channel.tag_efficiency)
-    ok = (y > 0) & (y >= sens) & (p_inc >= tag_sens) & (jax.random.uniform(k_read, (num_reads,)) < p_read)
+    ok = (y > 0) & (y >= sens) & (p_inc >= tag_sens) & (rng.uniform(k_read, (num_reads,)) < p_read)
     return (
         jnp.broadcast_to(reader, (num_reads, 4)),
         jnp.where(ok, y, MASKED_RSSI),

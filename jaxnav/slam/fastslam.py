@@ -71,7 +71,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath, kalman, resampling, weights
+from jaxnav.core import fastmath, kalman, resampling, rng, weights
 from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
@@ -345,7 +345,7 @@ def init(
     sd = jnp.zeros(3, pose.dtype) if initial_sd is None else jnp.asarray(initial_sd, pose.dtype)
     check_shape("initial_sd", sd, (3,))
     check_nonnegative("initial_sd", sd)
-    poses = pose + jax.random.normal(key, (n, 3), pose.dtype) * sd
+    poses = pose + rng.normal(key, (n, 3), pose.dtype) * sd
     poses = poses.at[:, 2].set(weights.wrap_angle(poses[:, 2]))
     cov_shape = ((m,) if config.shared_covariance else (n, m)) + (d, d)
     if landmark_means is None:
@@ -666,7 +666,7 @@ def _proposal(om, r, prior_mean, prior_cov, means, covs, seen, obs, valid, ids):
 def _sample_gaussian(key, mean, cov):
     chol = jnp.linalg.cholesky(kalman.ensure_pd(cov))
     chol = jnp.where(jnp.all(jnp.isfinite(chol)), chol, jnp.diag(jnp.sqrt(jnp.maximum(jnp.diagonal(cov), 0.0))))
-    x = mean + chol @ jax.random.normal(key, mean.shape, mean.dtype)
+    x = mean + chol @ rng.normal(key, mean.shape, mean.dtype)
     return x.at[2].set(weights.wrap_angle(x[2]))
 
 

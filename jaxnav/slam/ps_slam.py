@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, ring, weights
+from jaxnav.core import resampling, ring, rng, weights
 from jaxnav.core.validation import check_nonnegative, check_positive_int, check_shape
 from jaxnav.models import hf_rfid
 from jaxnav.slam import tag_slam
@@ -143,7 +143,7 @@ def _propose(key, row: SmootherTable, is_new, pose_est, init_offset, config, par
     """[W] Alg. 2 lines 6–11: a new tag's particles over the initialising footprint, or the row's moved by the jitter."""
     j = config.num_tag_particles
     fresh = hf_rfid.sample_in_footprint(jax.random.fold_in(key, 0), pose_est, init_offset, params.sensor.half_width, j)
-    noise = jax.random.normal(jax.random.fold_in(key, 2), row.particles.shape, row.particles.dtype)
+    noise = rng.normal(jax.random.fold_in(key, 2), row.particles.shape, row.particles.dtype)
     particles = jnp.where(is_new, fresh, row.particles + params.tag_jitter_sd * noise)
     log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
     return particles, log_w

@@ -72,7 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
@@ -234,7 +234,7 @@ def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd
     check_shape("initial_sd", sd, (3,))
     check_nonnegative("initial_sd", sd)
     n = config.num_particles
-    poses = pose + jax.random.normal(key, (n, 3), pose.dtype) * sd
+    poses = pose + rng.normal(key, (n, 3), pose.dtype) * sd
     poses = poses.at[:, 2].set(weights.wrap_angle(poses[:, 2]))
     return poses, jnp.full((n,), -np.log(n), pose.dtype)
 
@@ -274,7 +274,7 @@ def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.A
     computed at every step (a ``cond`` becomes a select), so it is kept to 4 uniforms per particle.
     """
     n = poses.shape[0]
-    u = jax.random.uniform(key, (n, 4), poses.dtype)
+    u = rng.uniform(key, (n, 4), poses.dtype)
     num_known = jnp.sum(known)
     rank = jnp.minimum(jnp.floor(u[:, 0] * num_known), num_known - 1)  # which re-detected slot
     pick = jnp.sum(jnp.cumsum(known)[None, :] <= rank[:, None], axis=1)  # its index among all slots

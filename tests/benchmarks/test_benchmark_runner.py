@@ -82,3 +82,26 @@ def test_before_after_table_pairs_rows_and_divides(tmp_path):
     text = table(result(tmp_path / "b.json", 2e-3), result(tmp_path / "a.json", 1e-3), implementation="jaxnav")
     (line,) = [l for l in text.splitlines() if l.startswith("| W4")]
     assert line == "| W4 | B=1 |  | jaxnav | in_scan | float32 | 2.00 ms | 1.00 ms | 0.50 |"
+
+
+def test_plain_forms_rows_trace_without_the_fast_paths_and_restore_them():
+    """The ``jaxnav-plain`` rows' switch: on inside the block (jax.random's loop back in the program), off after,
+    even when the block raises."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxnav.core import fastmath, rng
+
+    def draw(key):
+        return rng.uniform(key, (100,), jnp.float32)
+
+    def has_loop() -> bool:
+        return "stablehlo.while" in jax.jit(draw).lower(jax.random.key(0)).as_text()
+
+    assert not fastmath.use_plain_forms() and not has_loop()
+    with harness.plain_forms():
+        assert fastmath.use_plain_forms() and has_loop()
+    assert not fastmath.use_plain_forms() and not has_loop()
+    with pytest.raises(RuntimeError), harness.plain_forms():
+        raise RuntimeError("a failed row")
+    assert not fastmath.use_plain_forms() and not has_loop()

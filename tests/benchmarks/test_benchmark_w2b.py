@@ -230,7 +230,12 @@ def test_runner_writes_w2b_rows(tmp_path, monkeypatch):
     assert payload["complete"] is True and "W2b" in payload["workloads"]
     rows = payload["rows"]
     impls = {(r["implementation"], r["mode"]) for r in rows}
-    assert {("jaxnav", "in_scan"), ("numpy", "per_call"), ("particles", "per_call")} == impls
+    assert {
+        ("jaxnav", "in_scan"),
+        ("jaxnav-plain", "in_scan"),
+        ("numpy", "per_call"),
+        ("particles", "per_call"),
+    } == impls
     floor = w2b.floor_bytes(R, N) / 1e10
     for r in rows:
         for k in ("workload", "implementation", "size", "mode", "median_s"):

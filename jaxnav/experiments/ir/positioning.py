@@ -45,6 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.validation import check_choice, check_nonnegative, check_positive, check_positive_int
 from jaxnav.core.weights import wrap_angle
 from jaxnav.experiments import report
@@ -306,7 +307,7 @@ def installed_layout(key: jax.Array, inputs: DriveInputs) -> ir.EmitterLayout:
     ``installation_sd = 0`` a run is exactly the run without the option.
     """
     lay = inputs.sim_layout
-    noise = jax.random.normal(jax.random.fold_in(key, 1), lay.positions.shape, lay.positions.dtype)
+    noise = rng.normal(jax.random.fold_in(key, 1), lay.positions.shape, lay.positions.dtype)
     return lay._replace(positions=lay.positions + inputs.installation_sd * noise)
 
 

@@ -75,6 +75,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import rng
 from jaxnav.core.resampling import REFRESHES
 from jaxnav.core.validation import check_choice, check_nonnegative, check_positive, check_positive_int
 from jaxnav.experiments import stats
@@ -234,7 +235,7 @@ def anchor_position(
     0.3 m inside the box and the distance at most 0.69 m, so more than a third
     of the sphere is inside).
     """
-    u = jax.random.normal(key, (tries, 3), jnp.float32)
+    u = rng.normal(key, (tries, 3), jnp.float32)
     u = u / jnp.maximum(jnp.linalg.norm(u, axis=1, keepdims=True), 1e-30)
     q = tag + distance * u
     lo = jnp.maximum(box_lo, jnp.array([-jnp.inf, -jnp.inf, 0.0], jnp.float32))
@@ -259,8 +260,8 @@ def draw_scene(key: jax.Array, inputs: UHFInputs) -> Scene:
     k_tag, k_off, k_anc = _keys(key)[:3]
     box_lo, box_hi = inputs.filter.box_lo, inputs.filter.box_hi
     lo, hi = box_lo + inputs.margin, box_hi - inputs.margin
-    tag = lo + jax.random.uniform(k_tag, (3,)) * (hi - lo)
-    offset = jax.random.uniform(k_off, (), minval=-math.pi, maxval=math.pi)
+    tag = lo + rng.uniform(k_tag, (3,)) * (hi - lo)
+    offset = rng.uniform(k_off, (), minval=-math.pi, maxval=math.pi)
     return Scene(tag, offset, anchor_position(k_anc, tag, inputs.anchor_distance, box_lo, box_hi))
 
 

@@ -1,0 +1,213 @@
+"""``jax.random``'s bits, uniforms and normals, bit for bit, computed by arithmetic that XLA:CPU vectorises.
+
+**Why this module exists**
+
+``jax.random`` draws through the Threefry-2x32 hash. On the CPU, JAX lowers the
+hash as a rolled loop of five iterations, each a separate XLA kernel over
+the whole array, which makes the normal draws of a motion model the largest
+part of an MCL step. The same hash written with ``jnp`` integer operations is one
+elementwise expression that XLA fuses into a single vectorised loop (and into
+the uniform transform after it), several times faster
+(``benchmarks/profile_w2.py`` times the draw both ways, and the ``W2``
+workload's ``jaxnav-plain`` row times the whole step with ``jax.random``).
+
+**The numbers are jax.random's**
+
+:func:`bits`, :func:`uniform` and :func:`normal` return exactly what
+``jax.random.bits``, ``jax.random.uniform`` and ``jax.random.normal`` return
+for the same key, shape and dtype, so a seed gives the same run with or
+without this module. The fast form applies when the key is a Threefry key
+(the default ``jax.random.key``/``PRNGKey``) and ``jax_threefry_partitionable``
+is on (JAX's default), on the CPU; any other key implementation, setting or
+backend calls ``jax.random`` itself, as does
+:func:`jaxnav.core.fastmath.use_plain_forms`. ``tests/core/test_rng.py`` checks the
+equality bit for bit, in float32 and float64, under ``jit``, ``vmap`` and
+``lax.scan``.
+
+Threefry-2x32 is Salmon et al., *Parallel random numbers: as easy as 1, 2, 3*
+(SC 2011): 20 rounds of ``x₀ += x₁; x₁ = rotl(x₁, r) ⊕ x₀`` with a key
+injection every 4. ``jax.random`` hashes the 64-bit position of each element
+(as two 32-bit halves) and, for 32-bit output, XORs the hash's two words.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnav.core import fastmath
+
+__all__ = ["bits", "uniform", "normal"]
+
+_U32 = np.uint32
+_ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
+_KEY_PARITY = 0x1BD11BDA
+
+
+def _rotate_left(x: jax.Array, distance: int) -> jax.Array:
+    return (x << _U32(distance)) | (x >> _U32(32 - distance))
+
+
+def _threefry2x32(k0: jax.Array, k1: jax.Array, x0: jax.Array, x1: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The Threefry-2x32 hash (20 rounds) of the counter pairs ``(x0, x1)`` under the key ``(k0, k1)``."""
+    schedule = (k0, k1, k0 ^ k1 ^ _U32(_KEY_PARITY))
+    x0, x1 = x0 + schedule[0], x1 + schedule[1]
+    for block in range(5):
+        for distance in _ROTATIONS[block % 2]:
+            x0 = x0 + x1
+            x1 = x0 ^ _rotate_left(x1, distance)
+        x0 = x0 + schedule[(block + 1) % 3]
+        x1 = x1 + schedule[(block + 2) % 3] + _U32(block + 1)
+    return x0, x1
+
+
+def _is_threefry(key: jax.Array) -> bool:
+    if not jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return str(jax.config.jax_default_prng_impl) == "threefry2x32" and key.shape == (2,)
+    return str(jax.random.key_impl(key)) == "threefry2x32" and key.shape == ()
+
+
+def _fast_form_applies(key: jax.Array, shape: tuple[int, ...], width: int) -> bool:
+    return (
+        not fastmath.use_plain_forms()
+        and bool(jax.config.jax_threefry_partitionable)
+        and _is_threefry(key)
+        and width in (32, 64)
+        and math.prod(shape) < 2**32
+    )
+
+
+def _key_data(key: jax.Array) -> jax.Array:
+    return jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+
+
+def _hash_words(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
+    """The two hash words of each element of ``shape`` (the element's flat position is the counter)."""
+    data = _key_data(key)
+    position = jax.lax.iota(_U32, math.prod(shape)).reshape(shape)
+    return _threefry2x32(data[0], data[1], jnp.zeros(shape, _U32), position)
+
+
+# The fast forms are jitted (inlined into an enclosing jit) as jax.random's are: called eagerly, each is
+# then one compiled program, which XLA contracts and fuses as it does jax.random's, so the floats agree
+# to the last bit.
+@functools.partial(jax.jit, static_argnums=(1, 2), inline=True)
+def _fast_bits(key: jax.Array, shape: tuple[int, ...], width: int) -> jax.Array:
+    hi, lo = _hash_words(key, shape)
+    if width == 32:
+        return hi ^ lo
+    return (hi.astype(jnp.uint64) << np.uint64(32)) | lo.astype(jnp.uint64)
+
+
+def _cpu_only(fast, plain, *operands):
+    """``fast(*operands)`` on the CPU, ``plain(*operands)`` elsewhere (JAX's own lowering there is not the rolled loop)."""
+    return jax.lax.platform_dependent(*operands, cpu=fast, default=plain)
+
+
+def _as_shape(shape: int | Sequence[int]) -> tuple[int, ...]:
+    return (int(shape),) if isinstance(shape, int | np.integer) else tuple(int(s) for s in shape)
+
+
+def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=jnp.uint32) -> jax.Array:
+    """Uniform random bits: ``jax.random.bits(key, shape, dtype)``, bit for bit (see the module docstring)."""
+    shape, dtype = _as_shape(shape), jnp.dtype(dtype)
+    width = dtype.itemsize * 8
+    if not (jnp.issubdtype(dtype, jnp.unsignedinteger) and _fast_form_applies(key, shape, width)):
+        return jax.random.bits(key, shape, dtype)
+    return _cpu_only(lambda k: _fast_bits(k, shape, width), lambda k: jax.random.bits(k, shape, dtype), key)
+
+
+def _fast_float_width(key: jax.Array, shape: tuple[int, ...], dtype) -> int | None:
+    """The float's width in bits when the fast form computes a draw of ``dtype`` (float32 or float64), else ``None``."""
+    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
+        return None
+    width = dtype.itemsize * 8
+    return width if _fast_form_applies(key, shape, width) else None
+
+
+def _unit_floats(raw: jax.Array, dtype: np.dtype) -> jax.Array:
+    """``[1, 2) − 1`` from the high mantissa bits of ``raw``, as ``jax.random.uniform`` builds them."""
+    info = jnp.finfo(dtype)
+    mantissa = raw >> np.asarray(info.bits - info.nmant, raw.dtype)
+    one = np.array(1.0, dtype).view(raw.dtype)
+    return jax.lax.bitcast_convert_type(mantissa | one, dtype) - jnp.asarray(1.0, dtype)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4), inline=True)
+def _fast_uniform(key: jax.Array, minval, maxval, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
+    floats = _unit_floats(_fast_bits(key, shape, jnp.finfo(dtype).bits), dtype)
+    return jax.lax.max(minval, floats * (maxval - minval) + minval)
+
+
+def uniform(
+    key: jax.Array,
+    shape: int | Sequence[int] = (),
+    dtype=None,
+    minval: float | jax.Array = 0.0,
+    maxval: float | jax.Array = 1.0,
+) -> jax.Array:
+    """Uniform floats in ``[minval, maxval)``: ``jax.random.uniform(key, shape, dtype, minval, maxval)``, bit for bit.
+
+    ``minval`` and ``maxval`` are scalars or arrays broadcastable to ``shape`` (as in ``jax.random``).
+    """
+    shape, dtype = _as_shape(shape), float if dtype is None else dtype
+    if _fast_float_width(key, shape, dtype) is None:
+        return jax.random.uniform(key, shape, dtype, minval, maxval)
+    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    lo = jax.lax.broadcast_to_rank(jnp.asarray(minval).astype(dtype), len(shape))
+    hi = jax.lax.broadcast_to_rank(jnp.asarray(maxval).astype(dtype), len(shape))
+    return _cpu_only(
+        lambda k, a, b: _fast_uniform(k, a, b, shape, dtype),
+        lambda k, a, b: jax.random.uniform(k, shape, dtype, a, b),
+        key,
+        lo,
+        hi,
+    )
+
+
+def _kept_apart(x: jax.Array, key_data: jax.Array) -> jax.Array:
+    """``x``, computed by XLA as a buffer of its own rather than inside its consumer's loop.
+
+    A ``while`` loop is a boundary that XLA does not fuse across; this one never runs
+    (its counter starts at ``key_data[0] >> 1``, which is ≥ 0, and runs while it is
+    negative), but XLA cannot prove it, so it keeps the loop and ``x`` is written once.
+    Were a compiler to remove the loop, the result would be the same, only slower.
+    """
+    start = (key_data[0] >> np.uint32(1)).astype(jnp.int32)
+    never = lambda c: c[0] < 0  # noqa: E731
+    step = lambda c: (c[0] + 1, c[1] ^ c[0].astype(c[1].dtype))  # noqa: E731
+    return jax.lax.while_loop(never, step, (start, x))[1]
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2), inline=True)
+def _fast_normal(key: jax.Array, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
+    lo = np.nextafter(np.array(-1.0, dtype), np.array(0.0, dtype), dtype=dtype)
+    width = jnp.finfo(dtype).bits
+    # Fused into one loop, the hash and erf⁻¹ ran several times slower on XLA:CPU than the two as
+    # separate loops (benchmarks/profile_w2.py, normal_jaxnav): the bits get a buffer of their own.
+    raw = _kept_apart(_fast_bits(key, shape, width), _key_data(key))
+    floats = _unit_floats(raw, dtype)
+    u = jax.lax.max(jnp.asarray(lo), floats * (jnp.asarray(1.0, dtype) - lo) + lo)
+    return jax.lax.mul(np.array(np.sqrt(2), dtype), jax.lax.erf_inv(u))
+
+
+def normal(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.Array:
+    """Standard normal draws: ``jax.random.normal(key, shape, dtype)``, bit for bit.
+
+    ``√2·erf⁻¹(u)`` with ``u`` uniform on ``(−1, 1)``, as JAX computes it.
+    """
+    shape, dtype = _as_shape(shape), float if dtype is None else dtype
+    if _fast_float_width(key, shape, dtype) is None:
+        return jax.random.normal(key, shape, dtype)
+    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    return _cpu_only(
+        lambda k: _fast_normal(k, shape, dtype),
+        lambda k: jax.random.normal(k, shape, dtype),
+        key,
+    )

@@ -157,12 +157,23 @@ def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     v, w, dt = control[..., 0], control[..., 1], control[..., 2]
     a = params.alphas
     k_ctrl, k_pose = jax.random.split(key)
-    eps = _standard_normal_unless_zero(k_ctrl, poses.shape[:-1] + (3,), poses.dtype, a)
-    v2, w2 = v * v, w * w
-    v_hat = v + eps[..., 0] * jnp.sqrt(a[0] * v2 + a[1] * w2)
-    w_hat = w + eps[..., 1] * jnp.sqrt(a[2] * v2 + a[3] * w2)
-    g_hat = eps[..., 2] * jnp.sqrt(a[4] * v2 + a[5] * w2)
-    moved = _arc(poses, v_hat, w_hat, g_hat, dt)
+
+    def noisy_controls() -> jax.Array:
+        eps = rng.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
+        v2, w2 = v * v, w * w
+        v_hat = v + eps[..., 0] * jnp.sqrt(a[0] * v2 + a[1] * w2)
+        w_hat = w + eps[..., 1] * jnp.sqrt(a[2] * v2 + a[3] * w2)
+        g_hat = eps[..., 2] * jnp.sqrt(a[4] * v2 + a[5] * w2)
+        return _arc(poses, v_hat, w_hat, g_hat, dt)
+
+    def exact_controls() -> jax.Array:
+        return _arc(poses, v, w, jnp.zeros_like(w), dt)
+
+    # With every α zero (pose noise only) the controls are exact: the arc's factor ``sinc(ωΔt/2)``
+    # is then one number for all particles instead of a sine and a division per particle, and no
+    # control noise is drawn. ``lax.cond`` decides at run time (under vmap over runs that share
+    # ``params`` it stays a branch).
+    moved = jax.lax.cond(jnp.any(a != 0), noisy_controls, exact_controls)
     return _add_pose_noise(k_pose, moved, params.pose_sd)
 
 

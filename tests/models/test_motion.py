@@ -185,3 +185,30 @@ def test_increment_sample_is_the_mean_plus_gaussian_noise_of_sd(getkey):
     draws = np.asarray(motion.increment_sample(getkey(), poses, dx, sd, "body"), np.float64)
     np.testing.assert_allclose(draws.mean(axis=0), np.asarray(dx), atol=4 * float(sd.max()) / math.sqrt(100_000))
     np.testing.assert_allclose(draws.std(axis=0), np.asarray(sd), rtol=0.02)  # 100k draws: ~0.2 % error on σ
+
+
+def test_velocity_sample_with_zero_alphas_is_the_exact_arc_plus_pose_noise():
+    """Pose noise only (every α zero): the controls are exact, so the draw is the noise-free arc plus the
+    pose noise, the same as with control noise of zero size, for a turning, a straight and a spinning
+    robot; and the gradient in the α is finite there (the branch with control noise is not taken)."""
+    poses = jax.random.normal(jax.random.key(0), (500, 3)) * 3.0
+    pose_sd = jnp.asarray([0.02, 0.02, 0.01])
+    for control in ([0.5, 0.1, 0.1], [0.5, 0.0, 0.1], [0.0, 1.3, 0.25]):
+        control = jnp.asarray(control)
+        noise = motion.VelocityNoise(jnp.zeros(6), pose_sd)
+        drawn = motion.velocity_sample(jax.random.key(3), poses, control, noise)
+        _, k_pose = jax.random.split(jax.random.key(3))
+        expected = motion._add_pose_noise(k_pose, motion.velocity_mean(poses, control), pose_sd)
+        np.testing.assert_allclose(drawn, expected, rtol=0, atol=2e-6)
+        tiny = motion.velocity_sample(
+            jax.random.key(3), poses, control, motion.VelocityNoise(jnp.full(6, 1e-30), pose_sd)
+        )
+        np.testing.assert_allclose(tiny, expected, rtol=0, atol=2e-6)
+
+    def spread(alphas):
+        moved = motion.velocity_sample(
+            jax.random.key(4), poses, jnp.asarray([0.5, 0.1, 0.1]), motion.VelocityNoise(alphas, pose_sd)
+        )
+        return jnp.sum(moved[:, 0])
+
+    assert np.all(np.isfinite(jax.grad(spread)(jnp.zeros(6))))

@@ -119,6 +119,10 @@ def time_calls(
     return Timing.from_samples(samples)
 
 
+PLAIN_NOTE = ", with jax.random, jnp trigonometry and jnp.cumsum instead of the CPU fast paths"
+"""What a ``jaxnav-plain`` row's note adds to its ``jaxnav`` twin's."""
+
+
 @contextlib.contextmanager
 def plain_forms():
     """Inside: jaxnav's CPU fast paths give way to plain JAX (:func:`jaxnav.core.fastmath.use_plain_forms`).

@@ -74,7 +74,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, plain_forms, skipped_row, time_calls
+from benchmarks.harness import (
+    PLAIN_NOTE,
+    Context,
+    Timing,
+    _GcOff,
+    guarded,
+    make_row,
+    plain_forms,
+    skipped_row,
+    time_calls,
+)
 from benchmarks.peers import optional_import
 from benchmarks.workloads import Workload, register
 
@@ -261,8 +271,7 @@ def _jaxnav_in_scan(ctx: Context, size: dict, n: int, state0, floor_s: float, pl
         floor_s=floor_s,
         steps=T,
         dtype="float32",
-        note="mcl.run over 50 steps, time / 50"
-        + (", with jax.random, jnp trigonometry and jnp.cumsum instead of the CPU fast paths" if plain else ""),
+        note="mcl.run over 50 steps, time / 50" + (PLAIN_NOTE if plain else ""),
     )
 
 

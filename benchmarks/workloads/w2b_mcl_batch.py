@@ -60,7 +60,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.harness import Context, Timing, _GcOff, guarded, make_row, plain_forms, skipped_row, time_calls
+from benchmarks.harness import (
+    PLAIN_NOTE,
+    Context,
+    Timing,
+    _GcOff,
+    guarded,
+    make_row,
+    plain_forms,
+    skipped_row,
+    time_calls,
+)
 from benchmarks.peers import optional_import
 from benchmarks.workloads import Workload, register
 from benchmarks.workloads import w2_mcl as w2
@@ -196,7 +206,7 @@ def _jaxnav_in_scan(ctx: Context, size: dict, r: int, n: int, floor_s: float, pl
         steps=T,
         dtype="float32",
         note=f"batch.compiled_vmap of mcl.run.jitted over {r} runs (one lax.scan of 50 steps), time / 50"
-        + (", with jax.random, jnp trigonometry and jnp.cumsum instead of the CPU fast paths" if plain else ""),
+        + (PLAIN_NOTE if plain else ""),
     )
 
 

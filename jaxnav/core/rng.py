@@ -122,13 +122,12 @@ def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=jnp.uint32) -> j
     return _cpu_only(lambda k: _fast_bits(k, shape, width), lambda k: jax.random.bits(k, shape, dtype), key)
 
 
-def _fast_float_width(key: jax.Array, shape: tuple[int, ...], dtype) -> int | None:
-    """The float's width in bits when the fast form computes a draw of ``dtype`` (float32 or float64), else ``None``."""
-    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+def _fast_float_dtype(key: jax.Array, shape: tuple[int, ...], dtype) -> np.dtype | None:
+    """The canonical ``dtype`` when the fast form computes the draw (float32 or float64), else ``None``."""
+    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(float if dtype is None else dtype))
     if dtype not in (jnp.dtype(jnp.float32), jnp.dtype(jnp.float64)):
         return None
-    width = dtype.itemsize * 8
-    return width if _fast_form_applies(key, shape, width) else None
+    return dtype if _fast_form_applies(key, shape, dtype.itemsize * 8) else None
 
 
 def _unit_floats(raw: jax.Array, dtype: np.dtype) -> jax.Array:
@@ -139,10 +138,15 @@ def _unit_floats(raw: jax.Array, dtype: np.dtype) -> jax.Array:
     return jax.lax.bitcast_convert_type(mantissa | one, dtype) - jnp.asarray(1.0, dtype)
 
 
+def _uniform_from_bits(raw: jax.Array, minval, maxval, dtype: np.dtype) -> jax.Array:
+    """``jax.random.uniform``'s floats in ``[minval, maxval)`` from its random words ``raw``."""
+    floats = _unit_floats(raw, dtype)
+    return jax.lax.max(minval, floats * (maxval - minval) + minval)
+
+
 @functools.partial(jax.jit, static_argnums=(3, 4), inline=True)
 def _fast_uniform(key: jax.Array, minval, maxval, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
-    floats = _unit_floats(_fast_bits(key, shape, jnp.finfo(dtype).bits), dtype)
-    return jax.lax.max(minval, floats * (maxval - minval) + minval)
+    return _uniform_from_bits(_fast_bits(key, shape, jnp.finfo(dtype).bits), minval, maxval, dtype)
 
 
 def uniform(
@@ -156,10 +160,11 @@ def uniform(
 
     ``minval`` and ``maxval`` are scalars or arrays broadcastable to ``shape`` (as in ``jax.random``).
     """
-    shape, dtype = _as_shape(shape), float if dtype is None else dtype
-    if _fast_float_width(key, shape, dtype) is None:
-        return jax.random.uniform(key, shape, dtype, minval, maxval)
-    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    shape = _as_shape(shape)
+    fast_dtype = _fast_float_dtype(key, shape, dtype)
+    if fast_dtype is None:
+        return jax.random.uniform(key, shape, float if dtype is None else dtype, minval, maxval)
+    dtype = fast_dtype
     lo = jax.lax.broadcast_to_rank(jnp.asarray(minval).astype(dtype), len(shape))
     hi = jax.lax.broadcast_to_rank(jnp.asarray(maxval).astype(dtype), len(shape))
     return _cpu_only(
@@ -188,12 +193,10 @@ def _kept_apart(x: jax.Array, key_data: jax.Array) -> jax.Array:
 @functools.partial(jax.jit, static_argnums=(1, 2), inline=True)
 def _fast_normal(key: jax.Array, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
     lo = np.nextafter(np.array(-1.0, dtype), np.array(0.0, dtype), dtype=dtype)
-    width = jnp.finfo(dtype).bits
     # Fused into one loop, the hash and erf⁻¹ ran several times slower on XLA:CPU than the two as
     # separate loops (benchmarks/profile_w2.py, normal_jaxnav): the bits get a buffer of their own.
-    raw = _kept_apart(_fast_bits(key, shape, width), _key_data(key))
-    floats = _unit_floats(raw, dtype)
-    u = jax.lax.max(jnp.asarray(lo), floats * (jnp.asarray(1.0, dtype) - lo) + lo)
+    raw = _kept_apart(_fast_bits(key, shape, jnp.finfo(dtype).bits), _key_data(key))
+    u = _uniform_from_bits(raw, jnp.asarray(lo), jnp.asarray(1.0, dtype), dtype)
     return jax.lax.mul(np.array(np.sqrt(2), dtype), jax.lax.erf_inv(u))
 
 
@@ -202,10 +205,11 @@ def normal(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.A
 
     ``√2·erf⁻¹(u)`` with ``u`` uniform on ``(−1, 1)``, as JAX computes it.
     """
-    shape, dtype = _as_shape(shape), float if dtype is None else dtype
-    if _fast_float_width(key, shape, dtype) is None:
-        return jax.random.normal(key, shape, dtype)
-    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    shape = _as_shape(shape)
+    fast_dtype = _fast_float_dtype(key, shape, dtype)
+    if fast_dtype is None:
+        return jax.random.normal(key, shape, float if dtype is None else dtype)
+    dtype = fast_dtype
     return _cpu_only(
         lambda k: _fast_normal(k, shape, dtype),
         lambda k: jax.random.normal(k, shape, dtype),

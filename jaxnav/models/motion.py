@@ -166,14 +166,11 @@ def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
         g_hat = eps[..., 2] * jnp.sqrt(a[4] * v2 + a[5] * w2)
         return _arc(poses, v_hat, w_hat, g_hat, dt)
 
-    def exact_controls() -> jax.Array:
-        return _arc(poses, v, w, jnp.zeros_like(w), dt)
-
     # With every α zero (pose noise only) the controls are exact: the arc's factor ``sinc(ωΔt/2)``
     # is then one number for all particles instead of a sine and a division per particle, and no
     # control noise is drawn. ``lax.cond`` decides at run time (under vmap over runs that share
     # ``params`` it stays a branch).
-    moved = jax.lax.cond(jnp.any(a != 0), noisy_controls, exact_controls)
+    moved = jax.lax.cond(jnp.any(a != 0), noisy_controls, lambda: velocity_mean(poses, control))
     return _add_pose_noise(k_pose, moved, params.pose_sd)
 
 

@@ -3,8 +3,11 @@
 Bad input never ends in a traceback: every refusal is one line on stderr,
 ``jaxnav COMMAND: error: MESSAGE``, naming the option or the file, with exit
 status 2. Options are checked before anything is computed: numbers must be
-finite and in range, ``--out`` must be writable, and the sizes of a run must
-fit in this machine's memory.
+finite and in range, ``--out`` must be writable and name regular files (not a
+folder, a named pipe or a device), and the sizes of a run must fit in this
+machine's memory. Outputs are written to a temporary file renamed into place:
+a full disk (or a quota, a read-only file system) is one line naming the file,
+and leaves no truncated file behind.
 """
 
 from __future__ import annotations
@@ -13,8 +16,10 @@ import argparse
 import csv
 import math
 import os
+import stat
 import sys
 import tempfile
+import warnings
 import zlib
 
 from jaxnav._version import __version__
@@ -117,11 +122,30 @@ def _check_folder_takes_files(option: str, value: str, folder: str) -> None:
         raise ValueError(f"{option} {value!r}: cannot write in {folder} ({err.strerror or err})") from None
 
 
-def _check_out_files(option: str, value: str, paths: list[str]) -> None:
-    """The files ``paths`` (derived from ``--out``) can be written: their folder takes files, none is a folder."""
+def _check_out_kinds(option: str, value: str, paths: list[str]) -> None:
+    """None of ``paths`` (derived from ``--out``) is a folder, a named pipe, a device or a socket: each is
+    absent or a regular file (a write would otherwise block on a pipe, or replace a device)."""
+    from jaxnav.io._files import describe
+
     for path in paths:
-        if os.path.isdir(path):
+        try:
+            mode = os.stat(path).st_mode
+        except OSError:  # absent: created; a folder on the way that cannot be searched: refused below
+            continue
+        if stat.S_ISDIR(mode):
             raise ValueError(f"{option} {value!r}: {path} is a folder, not a file")
+        if not stat.S_ISREG(mode):
+            raise ValueError(
+                f"{option} {value!r}: {path} is {describe(mode)}, not a regular file; remove it or choose another "
+                f"{option}"
+            )
+
+
+def _check_out_files(option: str, value: str, paths: list[str]) -> None:
+    """The files ``paths`` (derived from ``--out``) can be written: their folder takes files, each is absent
+    or a regular file (not a folder, a named pipe or a device)."""
+    _check_out_kinds(option, value, paths)
+    for path in paths:
         _check_folder_takes_files(option, value, os.path.dirname(os.path.abspath(path)))
 
 
@@ -137,20 +161,23 @@ def _check_out_dir(option: str, value: str) -> None:
 
 
 def _memory_bytes() -> int:
-    """This machine's physical memory (bytes); 0 when unknown."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (AttributeError, ValueError, OSError):
-        return 0
+    """The memory this process may use (bytes; :func:`jaxnav.core.memory.host_memory_bytes`); 0 when unknown."""
+    from jaxnav.core import memory
+
+    host = memory.host_memory_bytes()
+    return host[0] if host else 0
 
 
 def _check_memory(need: int, options: str) -> None:
-    """Refuse a run whose estimated memory exceeds this machine's, naming the options that size it."""
+    """Refuse a run whose estimated memory exceeds what this process may use, naming the options that
+    size it; ``JAXNAV_ALLOW_LARGE_ALLOCATIONS=1`` lets it through (:mod:`jaxnav.core.memory`)."""
+    from jaxnav.core import memory
+
     have = _memory_bytes()
-    if have and need > have:
+    if memory.guard_enabled() and have and need > have:
         raise ValueError(
-            f"this run would need about {need / 2**30:.3g} GiB of memory, more than this machine's "
-            f"{have / 2**30:.3g} GiB: reduce {options}"
+            f"this run would need about {need / 2**30:.3g} GiB of memory, more than the "
+            f"{have / 2**30:.3g} GiB this process may use: reduce {options} (or set {memory.ENV_VAR}=1 to try anyway)"
         )
 
 
@@ -164,6 +191,16 @@ def _names(option: str, text: str, choices: tuple[str, ...], what: str) -> list[
     return names
 
 
+def _warn_line(command: str):
+    """A ``warnings.showwarning`` that prints ``COMMAND: warning: MESSAGE`` as one line on stderr."""
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        text = " ".join(part.strip() for part in str(message).splitlines() if part.strip())
+        print(f"{command}: warning: {text}", file=sys.stderr, flush=True)
+
+    return show
+
+
 def _compiling(text: str) -> None:
     """Say on stderr, when it is a terminal, that XLA compiles (most of a first run's wait) before output."""
     try:
@@ -175,9 +212,12 @@ def _compiling(text: str) -> None:
 
 
 def _write_plot(draw, path: str) -> None:
-    """Call ``draw(path)`` and say where the PNG went, or that matplotlib is missing."""
+    """Call ``draw`` on a temporary file renamed to ``path`` once written (a full disk leaves no truncated
+    PNG, and the error names ``path``), and say where the PNG went, or that matplotlib is missing."""
+    from jaxnav.io._files import write_atomic_path
+
     try:
-        draw(path)
+        write_atomic_path(path, draw)
     except ImportError:
         print("matplotlib is not installed: no plot written (pip install 'jaxnav[plot]')")
     else:
@@ -433,6 +473,8 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
         raise ValueError("name an experiment (see 'jaxnav experiments list')")
     exp = registry.get(args.name)
     _check_out_dir("--out", args.out)
+    stem = registry.output_stem(args.out, exp.name, args.quick)
+    _check_out_kinds("--out", args.out, [stem + ext for ext in (".runs.json", ".json", ".md", ".png")])
     cells = len(exp.cells(args.quick))
     _check_memory(2 * 8 * 64 * cells * args.runs, f"--runs ({args.runs})")  # keys and results: ~64 numbers a run
     import jax
@@ -441,20 +483,21 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
         f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
         f"output in {args.out}{' (quick variant)' if args.quick else ''}"
     )
-    result = registry.run(
-        exp.name,
-        args.runs,
-        jax.random.PRNGKey(args.seed),
-        args.out,
-        quick=args.quick,
-        chunk_size=args.chunk,
-        progress=not args.no_progress,
-        workers=args.workers,
-        fresh=args.fresh,
-        plot=False,
-    )
+    with warnings.catch_warnings():  # a warning (a checkpoint read unverified) is one line too
+        warnings.showwarning = _warn_line(f"jaxnav {args.command}")
+        result = registry.run(
+            exp.name,
+            args.runs,
+            jax.random.PRNGKey(args.seed),
+            args.out,
+            quick=args.quick,
+            chunk_size=args.chunk,
+            progress=not args.no_progress,
+            workers=args.workers,
+            fresh=args.fresh,
+            plot=False,
+        )
     print(exp.render(result))
-    stem = registry.output_stem(args.out, exp.name, args.quick)
     print(f"wrote {stem}.json and {stem}.md")
     _write_plot(lambda path: exp.plot(result, path), f"{stem}.png")
     return 0
@@ -774,7 +817,8 @@ actions:
     xp.add_argument(
         "--fresh",
         action="store_true",
-        help="discard DIR/NAME.runs.json instead of resuming it (after changing the code)",
+        help="discard DIR/NAME.runs.json instead of resuming it (after changing the code, or when it is "
+        "refused as damaged or edited by hand)",
     )
     xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
     xp.add_argument("--no-progress", action="store_true", help="no progress display")

@@ -20,10 +20,16 @@ may differ in the last bits of a float, as between two XLA versions).
   experiment's cell, say, that a notebook runs again) is not compiled again
   in another. Set ``JAX_COMPILATION_CACHE_DIR`` to choose the directory (it
   is then kept).
+
+Two more keep a worker small and the slow parts short: JAX's in-memory programs
+are dropped after each test file (a worker that kept them all grew past 6 GB),
+and child processes whose programs run long (the documentation's examples, the
+notebooks) get XLA's default flags (:func:`xla_defaults_env`).
 """
 
 from __future__ import annotations
 
+import gc
 import itertools
 import os
 import shutil
@@ -31,6 +37,10 @@ import tempfile
 import zlib
 
 TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
+# The user's own XLA_FLAGS, before the suite adds its own; set once, by the first process (xdist
+# workers and other children inherit it with the flags already added).
+_USER_FLAGS_ENV = "JAXNAV_TEST_USER_XLA_FLAGS"
+os.environ.setdefault(_USER_FLAGS_ENV, os.environ.get("XLA_FLAGS", ""))
 if os.environ.get("JAXNAV_TEST_XLA_DEFAULTS") != "1":
     # Before jax starts its backend (importing jax does not): XLA reads the flags once.
     _flags = os.environ.get("XLA_FLAGS", "").split()
@@ -60,6 +70,26 @@ def pytest_configure(config):
 def pytest_unconfigure(config):
     if _made_cache_dir is not None:
         shutil.rmtree(_made_cache_dir, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_programs():
+    """Drop JAX's in-memory compiled programs after each test file. A worker that keeps every program
+    it compiled grows to several GB over the suite; programs shared between files are mostly small,
+    and those worth keeping (over 0.3 s to compile) come back from the persistent cache."""
+    yield
+    jax.clear_caches()
+    gc.collect()
+
+
+@pytest.fixture(scope="session")
+def xla_defaults_env() -> dict[str, str]:
+    """This process's environment with :data:`TEST_XLA_FLAGS` taken out of ``XLA_FLAGS``: for a child
+    process (a notebook kernel, a script) whose programs run long enough that XLA's optimisations
+    save more time than they cost to compile."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = os.environ[_USER_FLAGS_ENV]
+    return env
 
 
 def seed_id(nodeid: str) -> str:

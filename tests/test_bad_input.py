@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav.core import memory
 from jaxnav.demo import demo_setting
 from jaxnav.localization import augmented_mcl, ekf, grid, ir_mcl, kld_mcl, mcl, rfid_anchor, rfid_tag, ukf
 from jaxnav.models import hf_rfid
@@ -513,10 +514,12 @@ def test_plausible_inputs_are_accepted():
 def test_a_grid_too_large_to_index_or_to_hold_is_refused_before_allocation(monkeypatch):
     with pytest.raises(ValueError, match="more than the 2³¹ − 1 a grid can index"):
         grid.GridConfig((0.0, 10.0, 0.0, 10.0), 100_000, 100_000, 8)
-    monkeypatch.setattr(grid, "_physical_memory", lambda: 2**30)  # a machine with 1 GiB
-    with pytest.raises(ValueError, match=r"needs about 2.98 GiB for a step, more than this machine's 1 GiB"):
+    monkeypatch.setattr(memory, "limit_bytes", lambda device=None: (2**30, "a machine of 1 GiB"))
+    with pytest.raises(ValueError, match=r"grid \(2e\+08 cells\) would need about 2.98 GiB .*more than the 1 GiB of"):
         grid.GridConfig((0.0, 10.0, 0.0, 10.0), 10_000, 10_000, 2)
     grid.GridConfig((0.0, 10.0, 0.0, 10.0), 1_000, 1_000, 36)  # 0.54 GiB: fits
+    with memory.allow_large_allocations():  # the opt-out
+        grid.GridConfig((0.0, 10.0, 0.0, 10.0), 10_000, 10_000, 2)
 
 
 def test_init_uniform_refuses_infinite_bounds():

@@ -11,8 +11,8 @@ import importlib.util
 import json
 import pathlib
 import re
+import subprocess
 import sys
-import types
 
 import pytest
 
@@ -38,15 +38,51 @@ def _hand_written_pages() -> list[pathlib.Path]:
     return sorted(pages)
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md", "docs/interface.md"])
-def test_python_examples_run_as_written(page, monkeypatch, tmp_path, capsys):
-    blocks = _python_blocks(ROOT / page)
-    assert blocks, f"{page} has no Python example"
-    monkeypatch.chdir(tmp_path)
+EXAMPLE_PAGES = ("README.md", "docs/getting-started.md", "docs/interface.md")
+
+# Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
+# {page: null, or the traceback of the block that failed}.
+_RUN_EXAMPLES = """
+import json, re, sys, traceback, types
+from pathlib import Path
+outcomes = {}
+for page in sys.argv[2:]:
+    blocks = re.findall(r"^```python\\n(.*?)^```", (Path(sys.argv[1]) / page).read_text(), flags=re.S | re.M)
     module = types.ModuleType("docs_example")  # a real module: dataclasses look their class's module up
-    monkeypatch.setitem(sys.modules, module.__name__, module)
-    for block in blocks:  # one namespace per page: later blocks use what earlier ones defined
-        exec(compile(block, page, "exec"), module.__dict__)
+    sys.modules[module.__name__] = module
+    try:
+        for block in blocks:  # later blocks use what earlier ones defined
+            exec(compile(block, page, "exec"), module.__dict__)
+        outcomes[page] = None if blocks else "no Python example"
+    except BaseException:
+        outcomes[page] = traceback.format_exc()
+print("OUTCOMES " + json.dumps(outcomes))
+"""
+
+
+@pytest.fixture(scope="module")
+def example_outcomes(tmp_path_factory, xla_defaults_env):
+    """The examples of :data:`EXAMPLE_PAGES`, run in one process with XLA's default flags: they are
+    small programs that run long (the README's study is 100 runs of 120 steps), for which the
+    suite's compile-fast flags cost several times the compilation they save."""
+    env = {**xla_defaults_env, "MPLBACKEND": "Agg"}
+    proc = subprocess.run(
+        [sys.executable, "-c", _RUN_EXAMPLES, str(ROOT), *EXAMPLE_PAGES],
+        cwd=tmp_path_factory.mktemp("examples"),
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("OUTCOMES ")]
+    assert line, f"the examples' process printed no outcome (exit {proc.returncode}):\n{proc.stderr[-4000:]}"
+    return json.loads(line[-1].removeprefix("OUTCOMES "))
+
+
+@pytest.mark.parametrize("page", EXAMPLE_PAGES)
+def test_python_examples_run_as_written(page, example_outcomes):
+    assert _python_blocks(ROOT / page), f"{page} has no Python example"
+    assert example_outcomes[page] is None, f"{page}:\n{example_outcomes[page]}"
 
 
 def test_readme_is_a_front_page():

@@ -65,11 +65,15 @@ def _execute(nb, workdir: pathlib.Path):
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=IDS)
-def test_notebook_executes(path, tmp_path, monkeypatch):
-    """Each notebook runs top to bottom without an error (on a copy: the repository's file is not written)."""
+def test_notebook_executes(path, tmp_path, monkeypatch, xla_defaults_env):
+    """Each notebook runs top to bottom without an error (on a copy: the repository's file is not written).
+
+    The kernel gets XLA's default flags: a notebook's simulations run long enough that the suite's
+    compile-fast flags would cost more run time than they save compilation."""
     from jaxnav.io._data import ENV_VAR
 
     monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("XLA_FLAGS", xla_defaults_env["XLA_FLAGS"])
     nb = _read(path)
     meta = nb.metadata.get("jaxnav", {})
     needed, used = meta.get("requires_data"), meta.get("uses_data")

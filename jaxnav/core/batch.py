@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core import memory
+from jaxnav.core.filter import check_key
 from jaxnav.core.validation import check_positive_int
 
 __all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
@@ -95,7 +97,9 @@ def run_keys(key: jax.Array, num_runs: int) -> jax.Array:
     chunk sizes to float32 rounding, not bit for bit: XLA compiles a ``vmap`` of width 4 and one
     of width 8 into different programs, which may round differently (a particle filter can then
     amplify the difference). With one chunk size the results are bit-identical.
+    ``key`` must be one PRNG key (``ValueError`` naming it otherwise).
     """
+    check_key(key)
     return jax.random.split(key, num_runs)
 
 
@@ -113,11 +117,15 @@ def monte_carlo(
     Args:
         fn: a pure function of a PRNG key and optional per-run arguments,
             returning a pytree of arrays.
-        key: master key; run ``r`` receives ``run_keys(key, num_runs)[r]``.
+        key: master key, one PRNG key; run ``r`` receives ``run_keys(key, num_runs)[r]``.
         num_runs: R ≥ 1.
         *run_args: pytrees whose leaves have leading axis ``num_runs`` (e.g.
             simulated data per run); sliced per chunk.
-        chunk_size: runs per vmapped call (default: all at once). Bounds memory.
+        chunk_size: runs per vmapped call (default: all at once). Bounds memory: a chunk whose
+            inputs, outputs and XLA's working memory (from the compiled chunk; without ``jit``,
+            ``chunk_size`` times one run's outputs from :func:`jax.eval_shape`) exceed the
+            device's memory is refused with a ``ValueError`` before anything is allocated
+            (:mod:`jaxnav.core.memory`, which also says how to go ahead anyway).
         progress: optional ``callback(done, total)`` called after every chunk.
         jit: jit the vmapped function (one compilation for all chunks, cached
             across calls with the same ``fn`` object: :func:`compiled_vmap`).
@@ -126,6 +134,7 @@ def monte_carlo(
         The pytree of ``fn``'s outputs with a leading axis of size ``num_runs``,
         as NumPy arrays.
     """
+    check_key(key)
     num_runs = check_positive_int("num_runs", num_runs)  # 2.5 is refused, never silently 2
     chunk = num_runs if chunk_size is None else check_positive_int("chunk_size", chunk_size)
     chunk = min(chunk, num_runs)
@@ -135,6 +144,7 @@ def monte_carlo(
                 raise ValueError(
                     f"run_args[{i}] must have leading axis num_runs={num_runs}, got a leaf of shape {np.shape(leaf)}"
                 )
+    _check_chunk_fits(fn, key, run_args, chunk, chunk_size, num_runs, jit)
     keys = run_keys(key, num_runs)
     batched = (lambda *a: compiled_vmap(fn, *a)(*a)) if jit else jax.vmap(fn)
 
@@ -149,6 +159,47 @@ def monte_carlo(
         if progress is not None:
             progress(stop, num_runs)
     return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, axis=0), *outputs)
+
+
+def _check_chunk_fits(
+    fn: Callable[..., Any], key: Any, run_args: tuple, chunk: int, chunk_size: Any, num_runs: int, jit: bool
+) -> None:
+    """Refuse a chunk that would exceed the device's memory (:mod:`jaxnav.core.memory`), before allocating it.
+
+    Jitted, the chunk's program is compiled here (:func:`compiled_vmap` keeps it for the chunks, so
+    ``fn`` is traced once) and XLA's own account is used: its inputs, outputs and working memory.
+    Without ``jit``, :func:`jax.eval_shape` gives one run's outputs, times ``chunk``, plus the inputs.
+    """
+    if not memory.guard_enabled():
+        return
+    keys = jax.ShapeDtypeStruct((chunk, *np.shape(key)), key.dtype)
+    args = jax.tree_util.tree_map(
+        lambda a: jax.ShapeDtypeStruct((chunk, *np.shape(a)[1:]), _dtype(a), weak_type=getattr(a, "weak_type", False)),
+        run_args,
+    )
+    if jit:
+        exe = compiled_vmap(fn, keys, *args)
+        try:
+            stats = exe.memory_analysis()
+            need = stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+        except Exception:  # noqa: BLE001  (a backend without XLA's memory statistics)
+            need = memory.tree_bytes((keys, args, exe.out_info))
+        what = f"a monte_carlo chunk of {chunk} runs (its inputs, outputs and XLA's working memory)"
+    else:
+        rows = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape[1:], a.dtype), (keys, args))
+        per_run = memory.output_bytes(fn, rows[0], *rows[1])
+        if per_run is None:  # fn cannot be traced abstractly: the call itself says why
+            return
+        need = chunk * per_run + memory.tree_bytes((keys, args))
+        what = f"a monte_carlo chunk of {chunk} runs (its inputs and outputs)"
+    size = f"chunk_size ({chunk_size})" if chunk_size is not None else f"chunk_size (None: all {num_runs} runs at once)"
+    memory.check_fits(need, what=what, fields=size)
+
+
+def _dtype(a: Any) -> Any:
+    """The dtype ``a`` is sliced with (a NumPy ``float64`` stays one: the chunks' signature)."""
+    dtype = getattr(a, "dtype", None)
+    return np.asarray(a).dtype if dtype is None else dtype
 
 
 def _pad_slice(x: Any, start: int, stop: int, size: int) -> jax.Array:
@@ -179,7 +230,10 @@ def scan_filter(
     ``unroll`` steps share one loop iteration (``lax.scan``'s ``unroll``): with 2, a state that a
     step rebuilds out of place (a gather) is written straight into the loop's buffer every
     second step instead of being copied back at every step, for a longer compilation.
+    ``key`` must be one PRNG key or ``None`` (``ValueError`` naming it otherwise; its shape is
+    checked under a trace too).
     """
+    check_key(key, allow_none=True)
     if key is None:
         return jax.lax.scan(lambda s, x: step(s, config, params, *x), state, (controls, observations), unroll=unroll)
 

@@ -37,13 +37,23 @@ What the skeleton guarantees:
   must be of the filter's state type, its floating-point arrays float32 or float64 (one
   precision throughout), with no NaN and no ``+inf`` (``-inf`` only in log-domain fields,
   those named ``log_…``), and no magnitude above
-  :data:`~jaxnav.core.validation.MAX_MAGNITUDE`. A state the filter itself just returned or just
-  checked (the very same JAX arrays, with the same ``config``) is not read again: an online loop,
-  or a benchmark running from one initial state, pays nothing for the check.
+  :data:`~jaxnav.core.validation.MAX_MAGNITUDE`. Its precision must be the one the filter
+  computes in: float32 with ``jax_enable_x64`` off (a float64 state is refused, not cast), and
+  with x64 on not float32 beside float64 parameters (the step would change its dtype). A state
+  whose buffers were donated to an earlier call (``run(..., donate_state=True)``, or the
+  ``step`` of a filter that donates) is refused by name, at every call. A state the filter
+  itself just returned or just checked (the very same JAX arrays, with the same ``config`` and
+  x64 setting) is not read again: an online loop, or a benchmark running from one initial
+  state, pays nothing for the check.
   The parameters' floating-point values must be finite and at most
   :data:`~jaxnav.core.validation.MAX_MAGNITUDE` (log-domain fields, ``log_…``, may be ``-inf``).
 * **Lists are arrays.** An input passed as a Python list or plain tuple of numbers is
   read as an array.
+* **Invalid inputs inside a caller's jit.** There the host checks see tracers; the kernel
+  itself tests what matters numerically (``FilterSpec.valid_inputs`` and
+  :func:`params_in_domain`: a negative time step or noise level, a control or parameter that
+  is not finite or exceeds :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), sets
+  ``info.invalid_inputs`` and carries the state over unchanged (:func:`guard_inputs`).
 * **Compiled once per configuration and shapes.** ``config`` is the only static argument;
   new keys, parameters, data or states of the same shapes reuse the compiled program
   (``step.trace_count()`` and ``run.trace_count()`` count the traces, for tests).
@@ -58,6 +68,8 @@ The jitted functions are reachable as ``step.jitted`` and ``run.jitted`` (and
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import hashlib
 import inspect
 import threading
@@ -71,17 +83,50 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, first_index, is_concrete
+from jaxnav.core.memory import check_run_fits
+from jaxnav.core.validation import MAX_MAGNITUDE, all_finite_within, check_magnitude, first_index, is_concrete
 
-__all__ = ["FilterSpec", "Filter", "build", "scan", "check_key", "check_params_arrays", "check_state_arrays"]
+__all__ = [
+    "FilterSpec",
+    "Filter",
+    "build",
+    "scan",
+    "check_key",
+    "check_params_arrays",
+    "check_state_arrays",
+    "guard_inputs",
+    "inputs_in_domain",
+    "params_in_domain",
+    "flag_invalid_inputs",
+]
 
 
 def _no_check(*args: Any, **kwargs: Any) -> None:
     return None
 
 
-def _no_prepare(config: Any, *inputs: Any) -> tuple:
-    return inputs
+def _promote_half_precision(config: Any, *inputs: Any) -> tuple:
+    """The default ``prepare``: floating-point input arrays in half precision (float16, bfloat16)
+    become float32 (a filter's arithmetic, log-weights and squared distances, is not meaningful in
+    half precision, as :func:`~jaxnav.core.validation.float_array` states); the rest is unchanged."""
+
+    def promote(x: Any) -> Any:
+        return jnp.asarray(x, jnp.float32) if _is_half_float(getattr(x, "dtype", None)) else x
+
+    if not any(_is_half_float(getattr(leaf, "dtype", None)) for leaf in jax.tree_util.tree_leaves(inputs)):
+        return inputs  # the common case, tested once per leaf without rebuilding the inputs
+    return tuple(jax.tree_util.tree_map(promote, x) for x in inputs)
+
+
+_HALF_FLOAT: dict[Any, bool] = {None: False}
+"""dtype -> whether it is a half-precision float (float16, bfloat16), filled as dtypes are met."""
+
+
+def _is_half_float(dtype: Any) -> bool:
+    half = _HALF_FLOAT.get(dtype)
+    if half is None:
+        half = _HALF_FLOAT[dtype] = bool(jnp.issubdtype(dtype, jnp.floating) and np.dtype(dtype).itemsize < 4)
+    return half
 
 
 def _identity(x: Any) -> Any:
@@ -90,6 +135,10 @@ def _identity(x: Any) -> Any:
 
 def _one_step_per_iteration(config: Any) -> int:
     return 1
+
+
+def _always_valid(config: Any, params: Any, *inputs: Any) -> jax.Array:
+    return jnp.asarray(True)
 
 
 @dataclass(frozen=True)
@@ -105,7 +154,8 @@ class FilterSpec:
         check_params: ``(config, params)``, raises ``ValueError``; memoised by value (module docstring).
         check_state: ``(config, params, state)``, raises ``ValueError``.
         check_inputs: ``(config, params, *inputs, time_axis=bool)``, raises ``ValueError``.
-        prepare: ``(config, *inputs) -> inputs`` on the host after the checks (dtype casts).
+        prepare: ``(config, *inputs) -> inputs`` on the host after the checks (dtype casts; the
+            default promotes half-precision inputs, float16 and bfloat16, to float32).
         deterministic: the kernel ignores its key; ``None`` is accepted as the key.
         donate_step: ``step`` donates its state (in-place tables).
         unroll: ``config -> int``, steps per ``lax.scan`` iteration in ``run``.
@@ -114,6 +164,15 @@ class FilterSpec:
         state_type: the state's class (e.g. ``MCLState``); anything else is refused.
         state_values: ``state -> pytree``, the part of a concrete state whose values are checked
             (default all of it; KLD-MCL: its active slots, the others are never read).
+        valid_inputs: ``(config, params, *inputs) -> bool[]``, traceable: the step's inputs are in
+            the model's domain (default: always). The twin of the value checks of ``check_params``
+            and ``check_inputs`` that matter numerically (``Δt ≥ 0``, noise levels ``≥ 0``, controls
+            finite and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), written with
+            ``jnp`` so that it runs inside a caller's ``jit``/``vmap``, where the host checks see
+            tracers. The kernel applies it (:func:`guard_inputs`, with :func:`params_in_domain`):
+            a step whose inputs are outside the domain sets ``info.invalid_inputs`` and returns
+            its state unchanged, so the caller's loop can tell. Measurements are not part of it:
+            an unusable measurement slot is dropped and counted in ``info.num_ignored`` instead.
     """
 
     name: str
@@ -123,7 +182,7 @@ class FilterSpec:
     check_params: Callable[[Any, Any], None] = _no_check
     check_state: Callable[[Any, Any, Any], None] = _no_check
     check_inputs: Callable[..., None] = _no_check
-    prepare: Callable[..., tuple] = _no_prepare
+    prepare: Callable[..., tuple] = _promote_half_precision
     deterministic: bool = False
     donate_step: bool = False
     unroll: Callable[[Any], int] = _one_step_per_iteration
@@ -132,6 +191,7 @@ class FilterSpec:
     time_inputs: tuple[str, ...] | None = None
     state_type: type | tuple[type, ...] | None = None
     state_values: Callable[[Any], Any] = _identity
+    valid_inputs: Callable[..., jax.Array] = _always_valid
 
     @property
     def run_inputs(self) -> tuple[str, ...]:
@@ -146,16 +206,20 @@ class Filter(NamedTuple):
     run: Callable[..., tuple[Any, Any]]
 
 
-def check_key(key: Any, *, allow_none: bool = False) -> None:
-    """``key`` must be a PRNG key: ``jax.random.key(seed)`` or ``jax.random.PRNGKey(seed)``.
+def check_key(key: Any, *, allow_none: bool = False, name: str = "key") -> None:
+    """``key`` must be one PRNG key: ``jax.random.key(seed)`` (a scalar typed key) or
+    ``jax.random.PRNGKey(seed)`` (a raw ``uint32`` array of shape ``(2,)``).
 
-    Raises ``ValueError`` naming the argument (JAX's own message for a wrong key names
-    neither the argument nor the function).
+    A raw key of another length, a batch of keys (``(5, 2)`` raw or ``(5,)`` typed), a number
+    or ``None`` (unless ``allow_none``, for the deterministic filters) raise ``ValueError``
+    naming the argument, ``name`` (JAX's own message for a wrong key names neither the argument
+    nor the function). Only the dtype and shape are read, so a tracer key inside a caller's
+    ``jit`` or ``vmap`` is checked too, at no cost.
     """
     if key is None:
         if allow_none:
             return
-        raise ValueError("key must be a PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got None")
+        raise ValueError(f"{name} must be a PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got None")
     dtype = getattr(key, "dtype", None)
     if dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
         if np.shape(key) == ():
@@ -163,9 +227,76 @@ def check_key(key: Any, *, allow_none: bool = False) -> None:
     elif dtype == np.uint32 and np.shape(key) == (2,):
         return
     raise ValueError(
-        "key must be one PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got "
+        f"{name} must be one PRNG key (jax.random.key(seed) or jax.random.PRNGKey(seed)), got "
         f"{type(key).__name__} of dtype {dtype} and shape {np.shape(key)}"
     )
+
+
+def params_in_domain(params: Any) -> jax.Array:
+    """``bool[]``, traceable: the check every filter's parameters pass on the host
+    (:func:`check_params_arrays`) as a ``jnp`` expression, for a caller's ``jit``: every
+    floating-point leaf finite and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in
+    magnitude, ``-inf`` allowed in log-domain fields (``log_…``)."""
+    ok = jnp.asarray(True)
+    for name, leaf in _named_leaves(params, "params"):
+        if not jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
+            continue
+        x = jnp.asarray(leaf)
+        if _is_log_domain(name):
+            x = jnp.where(x == -jnp.inf, 0.0, x)
+        ok = ok & all_finite_within(x)
+    return ok
+
+
+def inputs_in_domain(valid_inputs: Callable[..., jax.Array], config: Any, params: Any, *inputs: Any) -> jax.Array:
+    """``bool[]``: :func:`params_in_domain` and the filter's own ``valid_inputs`` (see
+    :class:`FilterSpec`) for one step's inputs."""
+    return params_in_domain(params) & jnp.asarray(valid_inputs(config, params, *inputs), bool)
+
+
+def flag_invalid_inputs(info: Any, ok: jax.Array) -> Any:
+    """``info`` (a NamedTuple or a dataclass) with its field ``invalid_inputs`` set to ``~ok``."""
+    flag = ~jnp.asarray(ok, bool)
+    if dataclasses.is_dataclass(info):
+        return dataclasses.replace(info, invalid_inputs=flag)
+    return info._replace(invalid_inputs=flag)
+
+
+def guard_inputs(
+    valid_inputs: Callable[..., jax.Array],
+) -> Callable[[Callable[..., tuple[Any, Any]]], Callable[..., tuple[Any, Any]]]:
+    """A decorator that makes a kernel keep its state on a step whose inputs are outside the domain.
+
+    The decorated ``kernel(key, state, config, params, *inputs)`` computes
+    ``ok = inputs_in_domain(valid_inputs, config, params, *inputs)`` and the update as before,
+    then returns ``(where(ok, new_state, state), info)`` with ``info.invalid_inputs = ~ok``
+    (the info's other fields describe the rejected update). The host refuses such inputs
+    before tracing; this is what happens to them inside a caller's ``jit``/``vmap``, where
+    their values are unknown until the program runs. The select reads the whole state, which
+    costs a pass over it per step: filters whose step updates a large table in place (PF-SLAM,
+    PS-SLAM, FastSLAM) neutralise their measurements instead, so that nothing is written.
+    """
+
+    def decorate(update: Callable[..., tuple[Any, Any]]) -> Callable[..., tuple[Any, Any]]:
+        @functools.wraps(update)
+        def kernel(key: Any, state: Any, config: Any, params: Any, *inputs: Any) -> tuple[Any, Any]:
+            ok = inputs_in_domain(valid_inputs, config, params, *inputs)
+            new_state, info = update(key, state, config, params, *inputs)
+            kept = jax.tree_util.tree_map(lambda new, old: jnp.where(ok, new, old), new_state, state)
+            return kept, flag_invalid_inputs(info, ok)
+
+        kernel.__doc__ = (update.__doc__ or "") + _GUARD_NOTE
+        return kernel
+
+    return decorate
+
+
+_GUARD_NOTE = """
+
+    A step whose inputs are outside the model's domain (a negative time step or noise level, a
+    control or parameter that is not finite or exceeds :data:`~jaxnav.core.validation.MAX_MAGNITUDE`),
+    which the host refuses before tracing, returns the state unchanged and sets
+    ``info.invalid_inputs`` (:func:`jaxnav.core.filter.guard_inputs`)."""
 
 
 def scan(
@@ -211,11 +342,13 @@ class _ParamsMemo:
     def __init__(self, check: Callable[[Any, Any], None], maxsize: int = 64) -> None:
         self._check = check
         self._maxsize = maxsize
-        self._passed: OrderedDict[tuple, None] = OrderedDict()
+        self._passed: OrderedDict[tuple, np.dtype | None] = OrderedDict()  # memo key -> widest float dtype
         self._lock = threading.Lock()
-        self._last: tuple | None = None  # (treedef, leaves, memo key) of the last immutable params
+        self._last: tuple | None = None  # (treedef, leaves, memo key, float dtype) of the last immutable params
 
-    def __call__(self, config: Any, params: Any) -> None:
+    def __call__(self, config: Any, params: Any) -> np.dtype | None:
+        """Checks ``params`` unless these values passed with ``config`` before; returns the widest
+        floating-point dtype among their leaves (``None`` if none), for :func:`_check_state_precision`."""
         leaves, treedef = jax.tree_util.tree_flatten(params)
         last = self._last
         if (
@@ -223,26 +356,38 @@ class _ParamsMemo:
             and last[0] == treedef
             and len(last[1]) == len(leaves)
             and all(a is b for a, b in zip(last[1], leaves))
-            and last[2][0] == config
+            and (last[2][0] is config or last[2][0] == config)
         ):
-            return  # the same immutable arrays as the last call, already checked with this config
+            return last[3]  # the same immutable arrays as the last call, already checked with this config
         fingerprint = _fingerprint(leaves, treedef)
         if fingerprint is None:  # tracers (values unknown) or leaves that are not arrays
             self._check(config, params)
-            return
+            return _widest_float(leaves)
         memo_key = (config, fingerprint)
         with self._lock:
             known = memo_key in self._passed
             if known:
                 self._passed.move_to_end(memo_key)
+                float_dtype = self._passed[memo_key]
         if not known:
             self._check(config, params)
+            float_dtype = _widest_float(leaves)
             with self._lock:
-                self._passed[memo_key] = None
+                self._passed[memo_key] = float_dtype
                 while len(self._passed) > self._maxsize:
                     self._passed.popitem(last=False)
         immutable = all(isinstance(leaf, jax.Array) for leaf in leaves)
-        self._last = (treedef, leaves, memo_key) if immutable else None
+        self._last = (treedef, leaves, memo_key, float_dtype) if immutable else None
+        return float_dtype
+
+
+def _widest_float(leaves: Sequence[Any]) -> np.dtype | None:
+    """The widest floating-point dtype among the array ``leaves`` that set the precision of the
+    arithmetic (``None`` if none): Python numbers and weakly typed JAX scalars take the dtype of
+    the arrays they meet, so they are left out."""
+    dtypes = [getattr(leaf, "dtype", None) for leaf in leaves if not getattr(leaf, "weak_type", False)]
+    floats = [np.dtype(d) for d in dtypes if d is not None and np.dtype(d).kind == "f"]
+    return max(floats, key=lambda d: d.itemsize) if floats else None
 
 
 def _fingerprint(leaves: list, treedef: Any) -> tuple | None:
@@ -277,9 +422,16 @@ def check_params_arrays(params: Any) -> None:
     """The checks every filter's parameters pass (module docstring): floating-point leaves finite
     and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude; log-domain fields
     (named ``log_…``) may also be ``-inf`` (zero probability).
-    Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
+    Complex and half-precision (float16, bfloat16) leaves are refused by their dtype, also for
+    tracers. Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
     for name, leaf in _named_leaves(params, "params"):
-        if isinstance(leaf, jax.core.Tracer) or np.dtype(_dtype(leaf)).kind != "f":
+        dtype = np.dtype(_dtype(leaf))
+        if jnp.issubdtype(dtype, jnp.complexfloating) or (jnp.issubdtype(dtype, jnp.floating) and dtype.itemsize < 4):
+            raise ValueError(
+                f"{name} has dtype {dtype.name}: parameters are real numbers in float32 or float64 (cast it "
+                "with .astype(jnp.float32))"
+            )
+        if isinstance(leaf, jax.core.Tracer) or dtype.kind != "f":
             continue
         v, log_field = np.asarray(leaf), _is_log_domain(name)
         if not _host_leaf_ok(v, log_field):
@@ -380,35 +532,106 @@ def _numbers_as_array(x: Any) -> Any:
     return a if a.dtype.kind in "biuf" else x
 
 
+_ARRAY_VALUE_TYPES: dict[type, bool] = {}
+"""Leaf type -> whether it is a JAX array holding values (not a tracer): the test every call makes
+on every leaf of the state, answered from this table after the first time a type is seen."""
+
+
+def _is_array_value(leaf: Any) -> bool:
+    """``leaf`` is a concrete JAX array (immutable values in a buffer that donation can delete)."""
+    kind = type(leaf)
+    known = _ARRAY_VALUE_TYPES.get(kind)
+    if known is None:
+        known = _ARRAY_VALUE_TYPES[kind] = issubclass(kind, jax.Array) and not issubclass(kind, jax.core.Tracer)
+    return known
+
+
+def _check_not_donated(state_leaves: Sequence[Any], state: Any, donating_step: bool) -> None:
+    """A state whose buffers were donated to an earlier call (``run(..., donate_state=True)``, or the
+    ``step`` of a filter that donates its state) holds no values any more: ``ValueError`` naming the
+    field, instead of XLA's message about a deleted buffer."""
+    if not any(_is_array_value(leaf) and leaf.is_deleted() for leaf in state_leaves):
+        return
+    name = next(n for n, leaf in _named_leaves(state) if _is_array_value(leaf) and leaf.is_deleted())
+    keep = (
+        "this filter's step donates its state, so copy a state you want to keep before passing it "
+        "(jax.tree_util.tree_map(jnp.copy, state)), and run keeps its initial state with donate_state=False"
+        if donating_step
+        else "run(..., donate_state=False), the default, keeps the initial state"
+    )
+    raise ValueError(
+        f"state has been donated to an earlier call ({name} is deleted: its buffer was reused for the state "
+        f"that call returned): pass the state that call returned instead; {keep}"
+    )
+
+
+def _check_state_precision(state: Any, compute_dtype: np.dtype, params_dtype: np.dtype | None) -> None:
+    """The state's floating-point arrays must be in the precision the filter computes in.
+
+    With 64-bit floats off (``jax_enable_x64`` False, ``compute_dtype`` float32) JAX computes in
+    float32, and a float64 state (made with x64 on) would be cast on the way in: refused. With x64
+    on, parameters holding float64 arrays (``params_dtype``) make the step compute in float64, and a
+    float32 state (made with x64 off) would change dtype in the step (``run``'s scan refuses a carry
+    that does): refused too. A float32 state with float32 parameters under x64 is one consistent
+    precision and accepted, as is a float64 state with float32 parameters (float64 throughout).
+    """
+    floats = [(name, np.dtype(_dtype(leaf))) for name, leaf in _named_leaves(state)]
+    floats = [(name, dtype) for name, dtype in floats if dtype.kind == "f"]
+    if compute_dtype.itemsize < 8:
+        wide = next(((name, dtype) for name, dtype in floats if dtype.itemsize > compute_dtype.itemsize), None)
+        if wide is not None:
+            raise ValueError(
+                f"state is in 64-bit floats ({wide[0]} is {wide[1].name}: made with x64 on, or from NumPy's default "
+                f"float64), but jax_enable_x64 is off, so the filter computes in {compute_dtype.name}. Make the "
+                "state again with x64 off (the filter's init), cast it (jax.tree_util.tree_map(lambda x: "
+                "x.astype(jnp.float32), state)), or turn x64 on for this call too (jax.enable_x64(True) or "
+                "jax.config.update('jax_enable_x64', True))"
+            )
+    elif params_dtype is not None and params_dtype.itemsize == 8:
+        narrow = next(((name, dtype) for name, dtype in floats if dtype.itemsize < 8), None)
+        if narrow is not None:
+            raise ValueError(
+                f"state is in 32-bit floats ({narrow[0]} is {narrow[1].name}: made with x64 off), but "
+                "jax_enable_x64 is on and params hold float64 arrays, so the filter computes in float64. Make the "
+                "state again with x64 on (the filter's init), cast it (jax.tree_util.tree_map(lambda x: "
+                "x.astype(jnp.float64), state)), or pass float32 params to compute in float32"
+            )
+
+
 class _KnownStates:
-    """Weak references to the last states a filter returned or checked, each with its ``config``:
-    passing one of these very states (an online loop, or a benchmark that runs from one initial
-    state again and again) skips the value checks, which would read the state back to the host.
-    Only states made of JAX arrays are remembered: they are immutable, so the same objects hold
-    the same values; a NumPy leaf could have been changed in place."""
+    """Weak references to the leaves of the last states a filter returned or checked, each with its
+    context (``config`` and the precision, see ``build``): passing one of these very states (an
+    online loop, or a benchmark that runs from one initial state again and again) skips the value
+    checks, which would read the state back to the host. Only states made of JAX arrays are
+    remembered: they are immutable, so the same objects hold the same values; a NumPy leaf could
+    have been changed in place."""
 
     def __init__(self, size: int = 2) -> None:
         self._size = size
-        self._known: list[tuple[Any, tuple]] = []
+        self._known: list[tuple[Any, tuple]] = []  # replaced, never changed in place: read without the lock
         self._lock = threading.Lock()
 
-    def remember(self, config: Any, state: Any) -> None:
-        leaves = jax.tree_util.tree_leaves(state)
-        if not all(isinstance(leaf, jax.Array) and not isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+    def remember(self, context: Any, leaves: Sequence[Any]) -> None:
+        """Remember the state whose leaves are ``leaves`` as checked in ``context``."""
+        if not all(_is_array_value(leaf) for leaf in leaves):
             return
-        entry = (config, tuple(weakref.ref(leaf) for leaf in leaves))
+        entry = (context, tuple(weakref.ref(leaf) for leaf in leaves))
         with self._lock:
             self._known = [entry, *self._known][: self._size]
 
-    def __contains__(self, item: tuple[Any, Any]) -> bool:
-        config, state = item
-        leaves = jax.tree_util.tree_leaves(state)
-        with self._lock:
-            known = list(self._known)
-        return any(
-            c == config and len(refs) == len(leaves) and all(r() is leaf for r, leaf in zip(refs, leaves))
-            for c, refs in known
-        )
+    def known(self, context: Any, leaves: Sequence[Any]) -> bool:
+        """Whether the state whose leaves are ``leaves`` is one of those remembered in ``context``;
+        a state found is moved to the front, so that one initial state passed again and again stays
+        known beside the states the calls return."""
+        known = self._known
+        for i, entry in enumerate(known):
+            c, refs = entry
+            if c == context and len(refs) == len(leaves) and all(r() is leaf for r, leaf in zip(refs, leaves)):
+                if i:
+                    with self._lock:
+                        self._known = [entry, *(e for e in self._known if e is not entry)][: self._size]
+                return True
+        return False
 
 
 def _article(name: str) -> str:
@@ -443,7 +666,9 @@ One ``lax.scan`` of :func:`kernel` over the leading (time) axis of the inputs; s
 those keys gives the same result. With ``donate_state=True`` the initial state's buffers
 are reused for the filter's state (do not use it after the call); without it XLA copies
 the initial state into the scan once per call. Returns ``(final_state, trace)``, the
-trace being the per-step info stacked over time.
+trace being the per-step info stacked over time. A run whose initial and final states and
+trace would exceed the device's memory is refused with a ``ValueError`` before anything is
+allocated (:mod:`jaxnav.core.memory`).
 """
 
 
@@ -470,28 +695,44 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
     run_jit_donated = jax.jit(run_pure, static_argnums=(2,), donate_argnums=(1,))
     check_params = _ParamsMemo(lambda config, params: (spec.check_params(config, params), check_params_arrays(params)))
     known_states = _KnownStates()
+    good_keys: set[tuple] = set()  # (type, dtype, shape) of the keys that passed check_key
     head = ("key", "state", "config", "params")
     step_signature = _signature(head, spec.inputs)
     run_signature = _signature(head, spec.run_inputs, [("donate_state", False)])
 
     def checked(key: Any, state: Any, config: Any, params: Any, inputs: tuple, time_axis: bool) -> tuple:
+        """Every host check of one call; returns the prepared inputs and the context in which the
+        returned state is known (the config and the precision: a state checked with x64 on is
+        checked again with it off)."""
         if not isinstance(config, spec.config_type):
             raise ValueError(f"config must be {_article(spec.config_type.__name__)}, got {type(config).__name__}")
-        check_key(key, allow_none=spec.deterministic)
-        check_params(config, params)
+        key_kind = (type(key), getattr(key, "dtype", None), getattr(key, "shape", None))  # all check_key reads
+        try:
+            known_key = key_kind in good_keys
+        except TypeError:  # an object whose dtype or shape cannot be hashed: check_key names it
+            known_key = False
+        if not known_key:
+            check_key(key, allow_none=spec.deterministic)
+            good_keys.add(key_kind)
+        params_dtype = check_params(config, params)
         if spec.state_type is not None and not isinstance(state, spec.state_type):
             types = spec.state_type if isinstance(spec.state_type, tuple) else (spec.state_type,)
             raise ValueError(
                 f"state must be {' or '.join(_article(t.__name__) for t in types)} (from the filter's init or "
                 f"a previous step), got {type(state).__name__}"
             )
-        if (config, state) not in known_states:
+        leaves = jax.tree_util.tree_leaves(state)
+        _check_not_donated(leaves, state, spec.donate_step)  # also for a known state: a donated one is known
+        compute_dtype = jax.dtypes.canonicalize_dtype(np.float64)  # float32 unless x64 is on
+        context = (config, compute_dtype, params_dtype)
+        if not known_states.known(context, leaves):
+            _check_state_precision(state, compute_dtype, params_dtype)
             spec.check_state(config, params, state)
             check_state_arrays(spec.state_values(state) if is_concrete(state) else state)
-            known_states.remember(config, state)
+            known_states.remember(context, leaves)
         inputs = _plain_sequences_as_arrays(inputs)
         spec.check_inputs(config, params, *inputs, time_axis=time_axis)
-        return spec.prepare(config, *inputs)
+        return spec.prepare(config, *inputs), context
 
     num_args = len(head) + len(spec.inputs)
 
@@ -499,19 +740,20 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
         if kwargs or len(args) != num_args:  # keywords or a wrong count: Python's own binding and errors
             args = step_signature.bind(*args, **kwargs).args
         key, state, config, params, *inputs = args
-        inputs = checked(key, state, config, params, tuple(inputs), time_axis=False)
+        inputs, context = checked(key, state, config, params, tuple(inputs), time_axis=False)
         out = step_jit(key, state, config, params, *inputs)
-        known_states.remember(config, out[0])
+        known_states.remember(context, jax.tree_util.tree_leaves(out[0]))
         return out
 
     def run(*args: Any, donate_state: bool = False, **kwargs: Any) -> tuple[Any, Any]:
         if kwargs or len(args) != num_args:
             args = run_signature.bind(*args, donate_state=donate_state, **kwargs).args
         key, state, config, params, *inputs = args
-        inputs = checked(key, state, config, params, tuple(inputs), time_axis=True)
+        inputs, context = checked(key, state, config, params, tuple(inputs), time_axis=True)
         jitted = run_jit_donated if donate_state else run_jit
+        check_run_fits(spec.name, jitted, key, state, config, params, inputs)  # memoised; before any allocation
         out = jitted(key, state, config, params, *inputs)
-        known_states.remember(config, out[0])
+        known_states.remember(context, jax.tree_util.tree_leaves(out[0]))
         return out
 
     for fn, signature, doc, notes, jitted, counter in (

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from jaxnav.core import resampling, weights
 
-__all__ = ["InfoT", "PFInfo", "extend_info", "finish_step", "keep_finite", "materialize"]
+__all__ = ["InfoT", "PFInfo", "extend_info", "finish_step", "keep_finite", "materialize", "at_least_one_slot"]
 
 InfoT = TypeVar("InfoT", bound="PFInfo")
 """A filter's info type, :class:`PFInfo` or a subclass of it (what :meth:`PFInfo.replace` and
@@ -66,6 +66,20 @@ def extend_info(info_type: type[InfoT], base: PFInfo, **fields: Any) -> InfoT:
     """``info_type`` (a subclass of :class:`PFInfo`) with the fields of ``base`` and ``fields``."""
     shared = {f.name: getattr(base, f.name) for f in dataclasses.fields(PFInfo)}
     return info_type(**shared, **fields)
+
+
+def at_least_one_slot(observation: Any) -> Any:
+    """A step's slotted observation (every leaf ``[K, ...]``, a ``mask`` among them) with one
+    empty slot (zeros, mask False) when it has none (``K = 0``), else the observation itself.
+
+    Zero slots are valid input (a step with nothing observed); this keeps the slot code, whose
+    reductions over slots (first slot of a landmark, last writer) have no empty form, to one
+    shape rule. The added slot is masked out, so the step is a motion update alone.
+    """
+    leaves = jax.tree_util.tree_leaves(observation)
+    if not leaves or leaves[0].shape[0] > 0:
+        return observation
+    return jax.tree_util.tree_map(lambda x: jnp.zeros((1, *x.shape[1:]), x.dtype), observation)
 
 
 def materialize(particles: jax.Array) -> jax.Array:

@@ -30,7 +30,10 @@ zero weight a sliver of the CDF. Here a resampling is exact:
    64 bits (:mod:`jaxnav.core.u64`). A float32 weight above ``2⁻³⁷`` of the total
    (float64: ``2⁻⁸``) is represented exactly; a smaller one loses less than
    ``2⁻⁵⁹`` of the total. A weight of zero (log-weight ``-inf``, or NaN, treated
-   as ``-inf``) is ``q_i = 0``.
+   as ``-inf``) is ``q_i = 0``. Subnormal weights (below ``2⁻¹²⁶`` in float32),
+   which XLA:CPU flushes to zero in arithmetic, are read from their bits
+   (:func:`integer_cdf`): weights that are all subnormal are resampled by their
+   exact relative sizes.
 2. **An exact CDF.** ``S_i = Σ_{j≤i} q_j`` is an integer sum, the same in any
    order (on one device or many); ``Q = S_{N−1}``.
 3. **Exact decisions.** A point ``x ∈ [0, 1)`` has ancestor ``min{i : x·Q < S_i}``.
@@ -156,20 +159,58 @@ def _power_of_two(exponent: jax.Array, dtype) -> jax.Array:
     return jax.lax.bitcast_convert_type(biased << info.nmant, dtype)
 
 
+def _scaled_to_top(p: jax.Array) -> jax.Array:
+    """``p_i·2^(−e)`` with ``2^(e−1) ≤ max p < 2^e``, exactly, read from the bits of ``p [N]``; NaN, ``±inf``
+    and negative entries (and ``−0``) give 0. (In the top binade, ``max p ≥ 2^(e_max − 1)``, ``e`` is
+    one less: the largest weight is scaled into ``[1, 2)``.)
+
+    XLA:CPU flushes subnormal floats (below ``2⁻¹²⁶`` in float32, ``2⁻¹⁰²²`` in float64) to zero
+    in arithmetic and comparisons, but not in a bitcast: a subnormal ``p_i = m_i·2^(e_min − t)``
+    (``t`` mantissa bits) is scaled as the integer ``m_i`` times ``2^(e_min − t − e)``, a normal
+    number when the largest weight is subnormal too. Non-negative floats are ordered as their
+    bits, so ``e`` is found from the largest bits: by a float maximum (vectorised on XLA:CPU,
+    where an integer one is not) of the bits moved up one binade, which makes every subnormal a
+    normal number in the same order. A result below the smallest normal number is 0; it is below
+    ``2^(e_min − 1)`` of the largest weight, which the integer weights truncate to 0 anyway.
+    """
+    info = jnp.finfo(p.dtype)
+    bits_type = jnp.int32 if info.bits == 32 else jnp.int64
+    bits = jax.lax.bitcast_convert_type(p, bits_type)
+    inf_bits = ((1 << (info.bits - 1 - info.nmant)) - 1) << info.nmant  # the bits of +inf
+    bits = jnp.where((bits > 0) & (bits < inf_bits), bits, 0)
+    binade = 1 << info.nmant  # one step of the exponent field
+    # the top binade is clamped into the one below it (never +inf): e is then one less, still exact
+    key = jax.lax.bitcast_convert_type(jnp.minimum(bits, inf_bits - 1 - binade) + binade, p.dtype)
+    top = jax.lax.bitcast_convert_type(jnp.max(key), bits_type) - binade
+    biased, normal_bits = top >> info.nmant, binade
+    length = info.bits - jax.lax.clz(top)  # of the mantissa, when the largest weight is subnormal
+    top_exp = jnp.where(biased > 0, biased + info.minexp, length + info.minexp - info.nmant)
+    sub_exp = info.minexp - info.nmant - top_exp
+    sub_scale = jnp.where(sub_exp >= info.minexp, _power_of_two(sub_exp, p.dtype), 0.0)
+    normal = jax.lax.bitcast_convert_type(bits, p.dtype) * _power_of_two(-top_exp, p.dtype)
+    # m as a float, exactly (m < 2^t): the bits of 2^t + m, minus 2^t (an integer conversion of
+    # 64-bit words is not vectorised on x86 without AVX-512, and a select computes both sides)
+    magic = _power_of_two(jnp.asarray(info.nmant), p.dtype)
+    mantissa = jax.lax.bitcast_convert_type(bits | jax.lax.bitcast_convert_type(magic, bits_type), p.dtype) - magic
+    return jnp.where(bits >= normal_bits, normal, mantissa * sub_scale)
+
+
 def integer_cdf(probabilities: jax.Array) -> IntegerCDF:
     """Integer weights ``q_i = ⌊p_i·2^k⌋`` and their exact CDF, for non-negative ``probabilities [N]``.
 
     ``p`` need not be normalised; NaN, ``±inf`` and negative entries count as zero.
     The power of two ``2^k`` puts the total in ``[2⁶⁰, 2⁶¹)`` up to the float
-    estimate of the sum (within 1 %). An input with no positive entry (or only
-    entries below float32's smallest normal number) is treated as uniform. Exact for
-    any N (the sums are integer sums).
+    estimate of the sum (within 1 %). It is applied in two exact steps: ``2^(−e)``
+    puts the largest weight in ``[0.5, 1)`` (``[1, 2)`` from ``2¹²⁷`` in float32,
+    ``2¹⁰²³`` in float64), with ``e`` read from the bits of ``p`` so that
+    subnormal weights (below ``2⁻¹²⁶`` in float32, ``2⁻¹⁰²²`` in float64, which
+    XLA:CPU flushes to zero in arithmetic) count with their exact values: weights
+    that are all subnormal keep their relative sizes and a zero among them is never
+    drawn. An input with no positive entry is treated as uniform. Exact for any N
+    (the sums are integer sums).
     """
-    p = jax.lax.stop_gradient(probabilities)
-    p = jnp.where((p > 0) & (p < jnp.inf), p, 0.0)
+    p = _scaled_to_top(jax.lax.stop_gradient(probabilities))  # exact: the largest weight lies in [0.5, 2)
     n = p.shape[0]
-    _, top_exp = jnp.frexp(jnp.max(p))
-    p = p * _power_of_two(-top_exp, p.dtype)  # exact: the largest weight now lies in [0.5, 1)
     total = _two_level_sum(p)
     empty = ~(total > 0)
     p = jnp.where(empty, 1.0, p)
@@ -404,9 +445,11 @@ def resample_weights(
     The scheme functions (:func:`systematic`, …) take log-weights and call this with
     ``exp(ℓ − max ℓ)``. ``weights`` need not be normalised; NaN, ``±inf`` and negative
     entries count as zero, and a vector with no positive entry is resampled as if
-    uniform. ``num_active`` (optional, may be traced, ``1 ≤ num_active ≤
-    num_samples``): draw that many samples into the first slots (``M = num_active``);
-    the remaining slots hold ``N − 1`` and are for the caller to mask.
+    uniform. Subnormal weights count with their exact values (:func:`integer_cdf`):
+    ``[1e-45, 1e-45, 0]`` in float32 draws indices 0 and 1 equally often, never 2.
+    ``num_active`` (optional, may be traced, ``1 ≤ num_active ≤ num_samples``): draw
+    that many samples into the first slots (``M = num_active``); the remaining slots
+    hold ``N − 1`` and are for the caller to mask.
 
     The uniforms each scheme draws from ``key`` (a reference implementation can
     reproduce them): systematic ``U = jax.random.bits(key, (), uint32)``; stratified

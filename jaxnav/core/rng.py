@@ -16,7 +16,11 @@ workload's ``jaxnav-plain`` row times the whole step with ``jax.random``).
 :func:`bits`, :func:`uniform` and :func:`normal` return exactly what
 ``jax.random.bits``, ``jax.random.uniform`` and ``jax.random.normal`` return
 for the same key, shape and dtype, so a seed gives the same run with or
-without this module. The fast form applies when the key is a Threefry key
+without this module. The defaults are jax.random's too: ``dtype=None`` is
+``uint32`` for :func:`bits` and ``float32`` for :func:`uniform` and
+:func:`normal`, or ``uint64`` and ``float64`` under ``jax_enable_x64``; a
+64-bit dtype asked for without ``jax_enable_x64`` gives the 32-bit numbers
+``jax.random`` gives for it. The fast form applies when the key is a Threefry key
 (the default ``jax.random.key``/``PRNGKey``) and ``jax_threefry_partitionable``
 is on (JAX's default), on the CPU; any other key implementation, setting or
 backend calls ``jax.random`` itself, as does
@@ -113,12 +117,19 @@ def _as_shape(shape: int | Sequence[int]) -> tuple[int, ...]:
     return (int(shape),) if isinstance(shape, int | np.integer) else tuple(int(s) for s in shape)
 
 
-def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=jnp.uint32) -> jax.Array:
-    """Uniform random bits: ``jax.random.bits(key, shape, dtype)``, bit for bit (see the module docstring)."""
-    shape, dtype = _as_shape(shape), jnp.dtype(dtype)
+def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.Array:
+    """Uniform random bits: ``jax.random.bits(key, shape, dtype)``, bit for bit (see the module docstring).
+
+    ``dtype``: an unsigned integer type; ``None`` is JAX's default one, ``uint32``, or ``uint64``
+    under ``jax_enable_x64``. Each element is ``b`` bits uniform on ``[0, 2ᵇ)``, ``b`` the width of
+    the canonical dtype (``uint64`` without ``jax_enable_x64`` is ``uint32``, as in ``jax.random``).
+    """
+    requested = dtype
+    shape = _as_shape(shape)
+    dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(jnp.uint64 if dtype is None else dtype))
     width = dtype.itemsize * 8
     if not (jnp.issubdtype(dtype, jnp.unsignedinteger) and _fast_form_applies(key, shape, width)):
-        return jax.random.bits(key, shape, dtype)
+        return jax.random.bits(key, shape, requested)
     return _cpu_only(lambda k: _fast_bits(k, shape, width), lambda k: jax.random.bits(k, shape, dtype), key)
 
 
@@ -158,7 +169,8 @@ def uniform(
 ) -> jax.Array:
     """Uniform floats in ``[minval, maxval)``: ``jax.random.uniform(key, shape, dtype, minval, maxval)``, bit for bit.
 
-    ``minval`` and ``maxval`` are scalars or arrays broadcastable to ``shape`` (as in ``jax.random``).
+    ``minval`` and ``maxval`` are scalars or arrays broadcastable to ``shape`` (as in ``jax.random``);
+    ``dtype=None`` is JAX's default float, ``float32`` (``float64`` under ``jax_enable_x64``).
     """
     shape = _as_shape(shape)
     fast_dtype = _fast_float_dtype(key, shape, dtype)
@@ -203,7 +215,8 @@ def _fast_normal(key: jax.Array, shape: tuple[int, ...], dtype: np.dtype) -> jax
 def normal(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.Array:
     """Standard normal draws: ``jax.random.normal(key, shape, dtype)``, bit for bit.
 
-    ``√2·erf⁻¹(u)`` with ``u`` uniform on ``(−1, 1)``, as JAX computes it.
+    ``√2·erf⁻¹(u)`` with ``u`` uniform on ``(−1, 1)``, as JAX computes it; ``dtype=None`` is JAX's
+    default float, ``float32`` (``float64`` under ``jax_enable_x64``).
     """
     shape = _as_shape(shape)
     fast_dtype = _fast_float_dtype(key, shape, dtype)

@@ -7,6 +7,7 @@ checks on *shapes* always run, since shapes are static.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
@@ -16,6 +17,7 @@ import numpy as np
 __all__ = [
     "is_concrete",
     "check_positive_int",
+    "check_nonnegative_int",
     "check_fraction",
     "check_shape",
     "check_positive",
@@ -32,6 +34,11 @@ __all__ = [
     "as_array",
     "check_type",
     "first_index",
+    "check_real",
+    "finite_within",
+    "all_finite_within",
+    "all_nonnegative",
+    "all_positive",
 ]
 
 MAX_MAGNITUDE = 1e6
@@ -53,6 +60,13 @@ def check_positive_int(name: str, value: Any) -> int:
     return int(value)
 
 
+def check_nonnegative_int(name: str, value: Any) -> int:
+    """``value`` must be an integer ≥ 0 (a count that may be zero, e.g. a number of steps)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+    return int(value)
+
+
 def check_fraction(name: str, value: Any) -> float:
     """``value`` must be a real number in (0, 1]."""
     try:
@@ -66,7 +80,9 @@ def check_fraction(name: str, value: Any) -> float:
 
 def check_shape(name: str, x: Any, shape: tuple[int | None, ...]) -> None:
     """``x`` must have ``shape``; ``None`` entries match any size."""
-    actual = np.shape(x)
+    actual = getattr(x, "shape", None)  # what np.shape reads first, without its dispatch
+    if not isinstance(actual, tuple):
+        actual = np.shape(x)
     if len(actual) != len(shape) or any(s is not None and s != a for s, a in zip(shape, actual)):
         want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
         raise ValueError(f"{name} must have shape {want}, got {tuple(actual)}")
@@ -76,11 +92,28 @@ def _values(name: str, x: Any) -> np.ndarray | None:
     """The values of ``x`` on the host (``None`` for tracers); ``ValueError`` naming ``name`` if
     ``x`` is not a number or an array of numbers (``None``, a string, an object)."""
     if not is_concrete(x):
+        check_real(name, x)
         return None
     v = np.asarray(x) if x is not None else None
+    if v is not None and v.dtype.kind == "V" and jnp.issubdtype(v.dtype, jnp.floating):
+        v = v.astype(np.float32)  # bfloat16 and other ml_dtypes floats: NumPy reads them as "void"
     if v is None or v.dtype.kind not in "biufc":
         raise ValueError(f"{name} must be a number or an array of numbers, got {type(x).__name__}")
+    check_real(name, v)
     return v
+
+
+def check_real(name: str, x: Any) -> None:
+    """``x`` must not hold complex numbers (a noise level, a distance, a time step is real): a
+    ``ValueError`` naming ``name`` and the dtype. Reads only the dtype, so it also runs for tracers."""
+    dtype = getattr(x, "dtype", None)
+    if dtype is None and isinstance(x, (list, tuple, complex)):
+        try:
+            dtype = np.asarray(x).dtype
+        except (TypeError, ValueError):  # ragged: not numbers, for the caller's other checks to name
+            return
+    if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
+        raise ValueError(f"{name} must hold real numbers, got dtype {np.dtype(dtype).name}")
 
 
 def check_type(name: str, x: Any, expected: type | tuple[type, ...]) -> None:
@@ -124,6 +157,8 @@ def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
     v = _values(name, x)
     if v is None or v.dtype.kind not in "fiuc":
         return
+    if (np.abs(v) <= limit).all():  # one pass for the common case: NaN and ±inf compare False
+        return
     bad = ~np.isfinite(v) | (np.abs(v) > limit)
     if bad.any():
         where = first_index(bad)
@@ -131,6 +166,31 @@ def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
             f"{name} holds {int(bad.sum())} value(s) that are not finite or exceed {limit:g} in magnitude, "
             f"the first ({float(v[where]):g}) at index {where}; values are in SI units (m, s, rad)"
         )
+
+
+def finite_within(x: Any, limit: float = MAX_MAGNITUDE) -> jax.Array:
+    """Elementwise and traceable: ``x`` finite with ``|x| ≤ limit`` (NaN and ±inf give False).
+
+    The twin of :func:`check_magnitude` for use inside a ``jit``, where the host cannot read values.
+    """
+    return jnp.isfinite(x) & (jnp.abs(x) <= limit)
+
+
+def all_finite_within(x: Any, limit: float = MAX_MAGNITUDE) -> jax.Array:
+    """``bool[]``, traceable: every entry of ``x`` finite with ``|x| ≤ limit`` (:func:`finite_within`)."""
+    return jnp.all(finite_within(x, limit))
+
+
+def all_nonnegative(x: Any, limit: float = MAX_MAGNITUDE) -> jax.Array:
+    """``bool[]``, traceable: every entry of ``x`` satisfies ``0 ≤ x ≤ limit`` (NaN gives False); the
+    twin of :func:`check_nonnegative` with :func:`check_magnitude`."""
+    return jnp.all(finite_within(x, limit) & (x >= 0))
+
+
+def all_positive(x: Any, limit: float = MAX_MAGNITUDE) -> jax.Array:
+    """``bool[]``, traceable: every entry of ``x`` satisfies ``0 < x ≤ limit`` (NaN gives False); the
+    twin of :func:`check_positive` with :func:`check_magnitude`."""
+    return jnp.all(finite_within(x, limit) & (x > 0))
 
 
 def check_choice(name: str, value: Any, choices: Any) -> None:
@@ -195,13 +255,16 @@ def check_bounds(name: str, bounds: Any) -> tuple[float, float, float, float]:
 def as_array(name: str, x: Any) -> Any:
     """``x`` itself if it is an array (JAX, NumPy or a tracer), else ``np.asarray(x)``: a Python
     list or tuple of numbers is accepted wherever an array is. Anything NumPy cannot read as
-    numbers raises ``ValueError`` naming ``name``."""
+    numbers, and complex numbers, raise ``ValueError`` naming ``name``."""
     if isinstance(x, (jax.Array, np.ndarray, np.generic)):
+        check_real(name, x)
         return x
     try:
         a = np.asarray(x)
     except (TypeError, ValueError):
         a = None
+    if a is not None and a.dtype.kind == "c":
+        raise ValueError(f"{name} must hold real numbers, got complex values (dtype {a.dtype.name})")
     if a is None or a.dtype.kind not in "biuf":
         raise ValueError(f"{name} must be an array of numbers, got {type(x).__name__}: {x!r:.80}")
     return a
@@ -238,6 +301,8 @@ def check_slots(
     infinity in a valid slot is refused with the first place it occurs, since a filter would
     carry it into every later estimate: mask such a slot out instead.
     """
+    if values is not None:
+        check_real(f"{name}.z", values)
     for field, x in ((ids_field, ids), ("mask", mask)):
         dtype = np.result_type(getattr(x, "dtype", None) or np.asarray(x).dtype)
         allowed = "biu" if field == "mask" else "iu"
@@ -257,11 +322,15 @@ def check_slots(
     if values is None or not is_concrete((mask, values)):
         return
     v = np.asarray(values)
-    valid = np.broadcast_to(np.asarray(mask).astype(bool), v.shape[: np.ndim(mask)])
+    if (np.abs(v) <= MAX_MAGNITUDE).all():
+        return  # the common case, in one pass: every value usable, valid slot or not (NaN and ±inf compare False)
+    lead = v.shape[: np.ndim(mask)]
+    valid = np.broadcast_to(np.asarray(mask).astype(bool), lead)
     if num_ids is not None:
         i = np.asarray(ids)
         valid = valid & (i >= 0) & (i < num_ids)
-    rows = v.reshape(v.shape[: np.ndim(mask)] + (-1,))
+    # Not reshape(..., -1): that fails on zero slots or zero steps, where there is nothing to check.
+    rows = v.reshape(lead + (math.prod(v.shape[len(lead) :]),))
     bad = valid & ~np.all(np.isfinite(rows), axis=-1)
     if bad.any():
         where = first_index(bad)

@@ -24,10 +24,14 @@ from collections.abc import Mapping
 
 import jax
 
+from jaxnav.core.filter import check_key
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
+from jaxnav.io._files import require_regular, write_atomic, write_atomic_path
 
 __all__ = ["Cell", "Experiment", "experiments", "names", "get", "output_stem", "run"]
+
+_NOT_REGULAR = "remove it or use another output directory (the results are written as regular files)"
 
 
 def experiments() -> Mapping[str, Experiment]:
@@ -71,6 +75,9 @@ def run(
 ) -> dict:
     """Run experiment ``name`` with ``runs`` seeded runs per cell; write ``NAME.json/.md/.png`` to ``out_dir``.
 
+    ``key`` is the master key, one PRNG key (``jax.random.key(seed)`` or ``jax.random.PRNGKey(seed)``):
+    anything else is refused with a ``ValueError`` naming it before the experiment is loaded.
+
     ``compiler_options`` are XLA options for the cells' compilation; by default the quick
     variant uses :data:`jaxnav.experiments.sweep.FAST_COMPILE` (its runs are short, its
     compilations are not) and the full one the experiment's own (``Experiment.compiler_options``:
@@ -86,13 +93,24 @@ def run(
     :func:`jaxnav.experiments.sweep.default_workers`). Runs that diverged are left out of
     the summaries and counted in the result (``diverged_runs``) and its tables.
 
+    Every file is written atomically (a temporary file in ``out_dir``, then renamed): a file that
+    cannot be written (disk full, quota exceeded, read-only, permission denied) raises an
+    ``OSError`` naming it and its cause, and leaves the file there as it was; the checkpoint keeps
+    the runs, so the same call writes the results again without computing them. A folder, a named
+    pipe or a device at one of these paths is refused with a ``ValueError`` naming it, before
+    anything is computed.
+
     The PNG needs matplotlib: without it none is written, silently. ``plot=False`` writes
     none; the caller can then draw it with ``get(name).plot(result, output_stem(...) + ".png")``
     and tell its user when matplotlib is missing (as ``jaxnav experiments run`` does).
     """
+    check_key(key)  # one PRNG key, refused by name before any study is loaded
     exp = get(name)
     cells = exp.cells(quick)
     checkpoint = None if out_dir is None else output_stem(out_dir, name, quick) + ".runs.json"
+    if out_dir is not None:  # refused now, not after the sweep
+        for ext in (".json", ".md", ".png"):
+            require_regular(output_stem(out_dir, name, quick) + ext, _NOT_REGULAR, missing_ok=True)
     raw = sw.sweep(
         [(c.id, c.fn, c.args) for c in cells],
         runs,
@@ -112,13 +130,13 @@ def run(
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}
     if out_dir is not None:
         stem = output_stem(out_dir, name, quick)
-        with open(stem + ".json", "w") as f:
-            json.dump(result, f, indent=1)
-        with open(stem + ".md", "w") as f:
-            f.write(exp.markdown(result) + "\n")
+        kept = f"the runs are kept in {checkpoint}: running this again writes the results without computing them"
+        markdown = exp.markdown(result) + "\n"
+        write_atomic(stem + ".json", lambda f: json.dump(result, f, indent=1), make_folder=True, note=kept)
+        write_atomic(stem + ".md", lambda f: f.write(markdown), note=kept)
         if plot:
             try:
-                exp.plot(result, stem + ".png")
+                write_atomic_path(stem + ".png", lambda path: exp.plot(result, path), note=kept)
             except ImportError:  # matplotlib is not installed
                 pass
     return result

@@ -22,11 +22,15 @@ another width is refused. The width is ``chunk_size``, or ``R`` when a new
 sweep has fewer runs than a chunk (no padding is computed); a checkpoint
 keeps its width when it is resumed with the same ``chunk_size``.
 
-The checkpoint is a JSON object ``{"meta", "chunk_size", "cells"}``:
+The checkpoint is a JSON object ``{"meta", "chunk_size", "cells", "sha256"}``:
 ``meta`` identifies the sweep (the cells' ids, the seed, the jaxnav version
-and the caller's ``meta``), ``chunk_size`` is the width of its chunks and
+and the caller's ``meta``), ``chunk_size`` is the width of its chunks,
 ``cells`` maps a cell's id to ``{field: [one value per run]}``, every field of
-a cell holding the same number of runs. A run's value is a number, ``true``
+a cell holding the same number of runs, and ``sha256`` is the SHA-256 (hex) of
+the other three in a canonical form: ``json.dumps({"meta", "chunk_size",
+"cells"}, sort_keys=True, separators=(",", ":"), ensure_ascii=True,
+allow_nan=False)`` of the values as read back, encoded as UTF-8, so it does not
+depend on the file's layout (indentation, key order). A run's value is a number, ``true``
 or ``false``, or a list of them for an array-valued field; a non-finite float
 (NaN, ±inf: a run with nothing to score, or one that diverged) is written as
 ``null`` and read back as NaN (standard JSON has no NaN). A checkpoint
@@ -37,9 +41,25 @@ structure, fields of uneven lengths, values that are not numbers or ``null``
 (strings, NaN or Infinity literals, numbers out of range), fields other than
 those its cells return, another seed, other cells, another jaxnav version or
 another chunk width are refused with a ``ValueError`` that names the file,
-never mixed in. After changing the code between two sweeps, start afresh
-(``fresh=True``, ``--fresh``): a checkpoint cannot tell that its cells now
-compute something else with the same fields.
+never mixed in. So is a checkpoint whose values no longer match its ``sha256``:
+a value edited by hand or damaged on the disk (a run's error of 9.8 mm turned
+into 12,509 mm would otherwise move a mean without a word). A checkpoint
+without ``sha256`` (written by jaxnav before it recorded one, or with the key
+removed) is read, since its values cannot be checked, with a warning
+(:class:`UnverifiedCheckpointWarning`); adding runs to it rewrites it with its
+checksum, and ``--fresh`` recomputes it. After changing the code between two
+sweeps, start afresh (``fresh=True``, ``--fresh``): a checkpoint cannot tell
+that its cells now compute something else with the same fields.
+
+Files: the checkpoint must be a regular file. A folder, a named pipe (FIFO), a
+device (``/dev/zero``, ``/dev/null``) or a socket at ``path`` is refused before
+it is opened (reading a named pipe would wait forever, a device would read as
+endless or empty data) with a ``ValueError`` naming it, ``fresh`` or not. The
+checkpoint is written to a temporary file in its folder, flushed to the disk,
+then renamed over the previous one: a full disk, an exceeded quota, a read-only
+file system or a lost permission raise an ``OSError`` naming the file and the
+cause in words (its ``errno`` is the original one), and leave the checkpoint as
+it was after the last chunk saved, to resume from.
 
 Parallelism: ``workers`` chunks run at once in threads (XLA releases the
 GIL; by default one per core on a CPU, up to 4: :func:`default_workers`), while the cells compile one after
@@ -53,10 +73,12 @@ Summaries of the runs (means, intervals, runs left out and counted) are in
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
 import time
+import warnings
 import zlib
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -66,6 +88,8 @@ import jax
 import numpy as np
 
 from jaxnav.core.batch import compiled_vmap
+from jaxnav.core.filter import check_key
+from jaxnav.io._files import open_regular, require_regular, write_atomic
 
 __all__ = [
     "cell_key",
@@ -73,6 +97,7 @@ __all__ = [
     "sweep",
     "default_workers",
     "Progress",
+    "UnverifiedCheckpointWarning",
     "FAST_COMPILE",
     "LIGHT_COMPILE",
 ]
@@ -94,6 +119,7 @@ the runs' spread."""
 
 def cell_key(key: jax.Array, cell_id: str) -> jax.Array:
     """The key of a cell: ``fold_in(key, crc32(cell_id))`` (independent of the cells' order)."""
+    check_key(key)
     return jax.random.fold_in(key, zlib.crc32(cell_id.encode()) & 0x7FFFFFFF)
 
 
@@ -187,9 +213,18 @@ class Progress:
 
 
 _KEYS = ("meta", "chunk_size", "cells")
-"""The keys of a checkpoint, in the order they are written."""
+"""The keys of a checkpoint's values, in the order they are written (its checksum, :data:`_CHECKSUM`, last)."""
+
+_CHECKSUM = "sha256"
+"""The key of a checkpoint's checksum: the SHA-256 of its values (:func:`_checksum`)."""
 
 _FRESH = "pass --fresh (fresh=True) to discard it and start again"
+
+_NOT_REGULAR = "remove it or use another output directory (a checkpoint is a regular JSON file)"
+
+
+class UnverifiedCheckpointWarning(UserWarning):
+    """A checkpoint without a checksum (written before checkpoints recorded one) is read unverified."""
 
 
 class _Invalid(Exception):
@@ -243,7 +278,7 @@ def _unique_keys(pairs: list) -> dict:
 def _read(path: str) -> Any:
     """The JSON in ``path`` (standard JSON only: no NaN or Infinity literals, no key given twice)."""
     try:
-        with open(path, encoding="utf-8") as f:
+        with open_regular(path, _NOT_REGULAR, encoding="utf-8") as f:
             text = f.read()
     except UnicodeDecodeError:
         raise _Invalid("it is not UTF-8 text, so not a sweep checkpoint") from None
@@ -348,7 +383,7 @@ def _check(data: Any, header: dict) -> None:
     missing = [k for k in _KEYS if k not in data and k != "chunk_size"]  # chunk_size may be absent (module docstring)
     if missing:
         raise _Invalid(f"it lacks the key{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
-    extra = [k for k in data if k not in _KEYS]
+    extra = [k for k in data if k not in (*_KEYS, _CHECKSUM)]
     if extra:
         raise _Invalid(f"it holds the unknown key{'s' if len(extra) > 1 else ''} {', '.join(map(_short, extra))}")
     if not isinstance(data["meta"], dict):
@@ -358,12 +393,22 @@ def _check(data: Any, header: dict) -> None:
     width = data.get("chunk_size", 1)
     if isinstance(width, bool) or not isinstance(width, int) or width < 1:
         raise _Invalid(f"its chunk_size is {_short(width)}, not a positive integer")
+    digest = data.get(_CHECKSUM, "0" * 64)
+    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
+        raise _Invalid(f"its {_CHECKSUM} is {_short(digest)}, not a SHA-256 digest (64 hexadecimal digits)")
     _check_cells(data["cells"], header["cells"])
+
+
+def _checksum(data: dict) -> str:
+    """The SHA-256 (hex) of a checkpoint's values in their canonical JSON form (module docstring)."""
+    values = {k: data[k] for k in _KEYS if k in data}
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def _load(path: str | None, header: dict) -> dict | None:
     """The checkpoint at ``path``, validated against this sweep's ``header``; ``None`` when there is none."""
-    if path is None or not os.path.exists(path):
+    if path is None or not require_regular(path, _NOT_REGULAR, missing_ok=True):
         return None
     try:
         data = _read(path)
@@ -418,13 +463,18 @@ def _chunk_width(requested: int, runs: int, stored: int | None) -> int:
 
 
 def _save(path: str | None, data: dict) -> None:
+    """Write the checkpoint with its checksum, atomically (module docstring)."""
     if path is None:
         return
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = path + ".tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump({k: data[k] for k in _KEYS}, f, allow_nan=False)
-    os.replace(tmp, path)
+    record = {k: data[k] for k in _KEYS}
+    record[_CHECKSUM] = _checksum(record)
+    write_atomic(
+        path,
+        lambda f: json.dump(record, f, allow_nan=False),
+        make_folder=True,
+        not_regular_advice=_NOT_REGULAR,
+        note="the checkpoint keeps the chunks saved before: run the same command again to resume from them",
+    )
 
 
 def default_workers() -> int:
@@ -475,7 +525,7 @@ def sweep(
             object and ``shared`` of the same shapes share one compilation
             (:func:`jaxnav.core.batch.compiled_vmap`).
         runs: R, runs per cell.
-        key: master key.
+        key: master key, one PRNG key (``ValueError`` naming it otherwise).
         path: JSON checkpoint (``None``: keep nothing on disk).
         chunk_size: runs per vmapped call (fewer for a new sweep of fewer runs). The checkpoint
             records it, and resuming it with another chunk size that would compute chunks of
@@ -499,11 +549,21 @@ def sweep(
 
     Raises:
         ValueError: bad arguments, or a checkpoint at ``path`` that cannot be resumed (module
-            docstring); the message, one line, names the file and says to pass ``--fresh``.
+            docstring): damaged, edited by hand (its values do not match its checksum), of another
+            sweep; the message, one line, names the file and says to pass ``--fresh``. Also a
+            ``path`` that is a folder, a named pipe, a device or a socket, ``fresh`` or not.
+        OSError: the checkpoint cannot be written (disk full, quota exceeded, read-only file
+            system, permission denied): the message names the file and the cause; the file keeps
+            the chunks saved before.
+
+    Warns:
+        UnverifiedCheckpointWarning: the checkpoint at ``path`` has no checksum (written before
+            checkpoints recorded one): its values are read unverified.
 
     Returns:
         ``{cell_id: {field: array [R, ...]}}`` (NumPy; a non-finite float is NaN).
     """
+    check_key(key)
     runs = int(runs)
     if runs < 1:
         raise ValueError(f"runs must be a positive integer, got {runs}")
@@ -528,13 +588,30 @@ def sweep(
         **(meta or {}),
     }
     header = json.loads(json.dumps(header))  # as it reads back from the file (tuples are lists)
+    if path is not None:  # refused before anything is computed, even when it would be written over
+        require_regular(path, _NOT_REGULAR, missing_ok=True)
     data = None if fresh else _load(path, header)
+    # whether the values read match the checksum they were written with (checked once the fields are, so a
+    # checkpoint of other code is named as such); computed before the cells not yet run are added below
+    intact = data is None or _CHECKSUM not in data or data[_CHECKSUM] == _checksum(data)
+    if data is not None and _CHECKSUM not in data:
+        warnings.warn(
+            f"{path}: the checkpoint has no {_CHECKSUM} checksum (it was written before checkpoints recorded "
+            f"one), so its values are read unverified; {_FRESH} if it may have been edited",
+            UnverifiedCheckpointWarning,
+            stacklevel=2,
+        )
     data = data or {"meta": header, "chunk_size": None, "cells": {}}
     done = {cell_id: _runs_stored(data["cells"].setdefault(cell_id, {})) for cell_id in ids}
     try:
         for cell_id, fn, shared in cells:
             if done[cell_id]:
                 _check_fields(cell_id, data["cells"][cell_id], _one_run_shape(fn, cell_key(key, cell_id), shared))
+        if not intact:
+            raise _Invalid(
+                f"its values do not match its {_CHECKSUM} checksum: the file was edited or damaged after it was "
+                "written, so its runs cannot be trusted"
+            )
         todo = any(n < runs for n in done.values())
         stored = data.get("chunk_size") if any(done.values()) and todo else None
         if any(done.values()) and todo and "chunk_size" not in data:

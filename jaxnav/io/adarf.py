@@ -83,6 +83,7 @@ import numpy as np
 
 from jaxnav.core.validation import check_positive_int
 from jaxnav.io._data import ENV_VAR, find_dataset
+from jaxnav.io._files import open_regular, require_regular
 from jaxnav.models import uhf_rfid as U
 
 __all__ = [
@@ -135,6 +136,8 @@ _SOURCE = (
 )
 _UNREADABLE = (OSError, EOFError, zlib.error, csv.Error, UnicodeDecodeError)
 """What reading a truncated or corrupted ``.csv.gz`` raises."""
+_NOT_REGULAR = "replace it by the dataset's own file (the loader reads regular files only)"
+"""What to do about a data file that is a folder, a named pipe or a device (never opened)."""
 
 
 class AdaRFExperiment(NamedTuple):
@@ -172,7 +175,8 @@ class AdaRFExperiment(NamedTuple):
 
 
 def _is_dataset(folder: Path) -> bool:
-    return (folder / "tag_ground_truth.csv").is_file() and (folder / _SUBSET).is_dir()
+    # exists(), not is_file(): a named pipe or a folder in the file's place is refused by name when read
+    return (folder / "tag_ground_truth.csv").exists() and (folder / _SUBSET).is_dir()
 
 
 def data_dir(root: str | os.PathLike | None = None) -> Path:
@@ -189,12 +193,16 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
 
 
 def available_experiments(root: str | os.PathLike | None = None) -> tuple[str, ...]:
-    """Experiments present with all 50 aperture files and a ground truth, sorted."""
+    """Experiments present with all 50 aperture files and a ground truth, sorted.
+
+    A file is present when its path exists: one that is a named pipe or a folder lists its experiment,
+    which :func:`load_experiment` then refuses naming that file.
+    """
     folder = data_dir(root)
     truth = ground_truth(root)
     out = []
     for sub in sorted((folder / _SUBSET).iterdir()):
-        if sub.name in truth and all((sub / f"{i}.csv.gz").is_file() for i in range(NUM_POINTS)):
+        if sub.name in truth and all((sub / f"{i}.csv.gz").exists() for i in range(NUM_POINTS)):
             out.append(sub.name)
     return tuple(out)
 
@@ -209,7 +217,7 @@ def _ground_truth(folder: str) -> dict[str, np.ndarray]:
     path = Path(folder) / "tag_ground_truth.csv"
     table: dict[str, dict[str, tuple[float, float]]] = {}
     try:
-        with open(path, encoding="utf-8-sig", newline="") as fh:
+        with open_regular(path, _NOT_REGULAR, encoding="utf-8-sig", newline="") as fh:
             reader = csv.reader(fh)
             header = next(reader, None)
             if header is None:
@@ -263,8 +271,9 @@ def _read_point(path: Path) -> tuple[list[list[str]], list[int], list[str]]:
     rows: list[list[str]] = []
     lines: list[int] = []
     line = 0
+    raw = open_regular(path, _NOT_REGULAR, "rb")  # refused before a named pipe is waited on
     try:
-        with gzip.open(path, "rt", encoding="utf-8-sig", newline="") as fh:  # utf-8-sig: the files start with a BOM
+        with raw, gzip.open(raw, "rt", encoding="utf-8-sig", newline="") as fh:  # utf-8-sig: files start with a BOM
             reader = csv.reader(fh)
             header = next(reader, None)
             line = reader.line_num
@@ -362,7 +371,7 @@ def _load(folder: str, name: str) -> AdaRFExperiment:
     stray = 0
     for p in range(NUM_POINTS):
         path = Path(folder) / _SUBSET / name / f"{p}.csv.gz"
-        if not path.is_file():
+        if not require_regular(path, _NOT_REGULAR, missing_ok=True):
             raise FileNotFoundError(f"{path} is missing: experiment {name} needs files 0..{NUM_POINTS - 1}")
         tag, values, line, n_stray = _parse_point(path, *_read_point(path))
         stray += n_stray
@@ -404,7 +413,8 @@ def load_experiment(name: str, root: str | os.PathLike | None = None) -> AdaRFEx
         ValueError: an unknown experiment; or a file that does not look like the documented format:
             truncated or corrupted, a line cut short, a field that is not a number, a NaN or
             infinite value, a phase outside [0, 2π] or an unknown frequency (the message names
-            the file, its 1-based line and the column).
+            the file, its 1-based line and the column); or a file that is a folder, a named pipe
+            (FIFO) or a device instead of a regular file, refused before it is opened.
     """
     return _load(str(data_dir(root)), str(name))
 

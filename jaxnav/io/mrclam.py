@@ -94,6 +94,7 @@ import numpy as np
 
 from jaxnav.core.validation import check_finite, check_positive_int, check_shape
 from jaxnav.io._data import ENV_VAR, find_dataset
+from jaxnav.io._files import open_regular, require_regular
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model
 
@@ -118,6 +119,9 @@ DATASET = "utias-mrclam-dataset7"
 """Name of the dataset folder inside the data folder."""
 
 _SOURCE = "http://asrl.utias.utoronto.ca/datasets/mrclam/ (the MRCLAM_Dataset7 files, unchanged)"
+
+_NOT_REGULAR = "replace it by the dataset's own file (the loader reads regular files only)"
+"""What to do about a data file that is a folder, a named pipe or a device (never opened)."""
 
 
 NUM_ROBOTS = 5  # MRCLAM robots are subjects 1..5
@@ -265,7 +269,8 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
     return find_dataset(
         root,
         DATASET,
-        lambda folder: (folder / "Barcodes.dat").is_file() and (folder / "Landmark_Groundtruth.dat").is_file(),
+        # exists(), not is_file(): a named pipe or a folder in a file's place is refused by name when read
+        lambda folder: (folder / "Barcodes.dat").exists() and (folder / "Landmark_Groundtruth.dat").exists(),
         "UTIAS MRCLAM Dataset 7",
         _SOURCE,
     )
@@ -283,7 +288,7 @@ def _robot_files(folder: Path, robot: int) -> tuple[Path, Path, Path]:
 
 def _data_lines(path: Path):
     """``(line number, fields)`` of each line holding data: ``#`` starts a comment, blank lines are skipped."""
-    with open(path, encoding="utf-8", errors="replace") as fh:
+    with open_regular(path, _NOT_REGULAR, encoding="utf-8", errors="replace") as fh:
         for number, line in enumerate(fh, start=1):
             fields = line.split("#", 1)[0].split()
             if fields:
@@ -312,8 +317,10 @@ def _read(path: Path, columns: int) -> np.ndarray:
     """The ``[rows, columns]`` float64 table of a data file; every value finite.
 
     Raises:
-        ValueError: naming the file and the 1-based line (and column) of the first bad value.
+        ValueError: naming the file and the 1-based line (and column) of the first bad value; or a
+            folder, a named pipe or a device in the file's place (refused before it is opened).
     """
+    require_regular(path, _NOT_REGULAR)  # np.loadtxt would wait forever on a named pipe
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # an empty file is refused below, with its name
@@ -413,13 +420,17 @@ def load_robot(robot: int, root: str | os.PathLike | None = None) -> MRCLAMRobot
     Raises:
         ValueError: ``robot`` is not an integer in 1–5; or a file holds a line that is not the
             right count of numbers, a NaN or infinite value, or a time stamp that goes backwards
-            (the message names the file and its 1-based line).
+            (the message names the file and its 1-based line); or a file is a folder, a named pipe
+            (FIFO) or a device (``/dev/null``, ``/dev/zero``) instead of a regular file, refused
+            before it is opened (the message names it).
         FileNotFoundError: the dataset folder, or this robot's files, are absent.
     """
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or not 1 <= robot <= NUM_ROBOTS:
         raise ValueError(f"robot must be an integer in 1..{NUM_ROBOTS} (MRCLAM has five robots), got {robot!r}")
     folder = data_dir(root)
-    missing = [str(p) for p in _robot_files(folder, int(robot)) if not p.is_file()]
+    missing = [
+        str(p) for p in _robot_files(folder, int(robot)) if not require_regular(p, _NOT_REGULAR, missing_ok=True)
+    ]
     if missing:
         raise FileNotFoundError(
             f"robot {robot}: {', '.join(missing)} not found; this copy holds robots {list(available_robots(folder))}"

@@ -73,14 +73,14 @@ Gradients do not flow through the resampling indices or the injection mask
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
@@ -124,6 +124,8 @@ class AugmentedMCLConfig:
             after a kidnap, which throws away good hypotheses as they appear.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 1000
     motion_model: str = "velocity"
     resampling: str = "systematic"
@@ -193,11 +195,16 @@ class AugmentedMCLInfo(PFInfo):
         num_ignored: int32, observation slots dropped because their id is not in the map.
         injection_probability: ``max(0, 1 − w_fast/w_slow)`` of this step.
         num_injected: int32, particles replaced by random poses this step.
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     num_ignored: jax.Array
     injection_probability: jax.Array
     num_injected: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -240,6 +247,7 @@ def _as_mcl_config(config: AugmentedMCLConfig) -> mcl.MCLConfig:
     return mcl.MCLConfig(config.num_particles, config.motion_model, config.resampling)
 
 
+@memory.guard_init
 def init(
     key: jax.Array,
     config: AugmentedMCLConfig,
@@ -249,10 +257,12 @@ def init(
 ) -> AugmentedMCLState:
     """Particles from ``N(initial_pose, diag(initial_sd²))`` (m, m, rad), uniform weights,
     ``w_slow = w_fast = 0``. Same draw as :func:`jaxnav.localization.mcl.init` for the same key."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     return _with_averages(mcl.init(key, _as_mcl_config(config), _as_mcl_params(params), initial_pose, initial_sd))
 
 
+@memory.guard_init
 def init_uniform(
     key: jax.Array,
     config: AugmentedMCLConfig,
@@ -260,6 +270,7 @@ def init_uniform(
     bounds: tuple[float, float, float, float] | None = None,
 ) -> AugmentedMCLState:
     """Global localization: positions uniform in ``bounds`` (default ``params.bounds``), θ uniform."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     if bounds is None:
         bounds = tuple(float(b) for b in np.asarray(params.bounds))
@@ -283,6 +294,16 @@ def injection_probability(log_w_slow: jax.Array, log_w_fast: jax.Array) -> jax.A
     return jnp.where(jnp.isfinite(log_w_slow), p, jnp.zeros_like(p))
 
 
+def _inputs_in_domain(
+    config: AugmentedMCLConfig, params: AugmentedMCLParams, control: jax.Array, obs: lm.RangeBearingObs
+) -> jax.Array:
+    """``bool[]``: :func:`jaxnav.models.landmarks.filter_inputs_in_domain` and map bounds with
+    ``x_min < x_max``, ``y_min < y_max`` (the value checks of the host, as ``jnp``)."""
+    b = params.bounds
+    return lm.filter_inputs_in_domain(config, params, control, obs) & (b[1] > b[0]) & (b[3] > b[2])
+
+
+@filter_api.guard_inputs(_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: AugmentedMCLState,
@@ -339,6 +360,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=_inputs_in_domain,
         time_inputs=("controls", "observations"),
         step_doc="""One augmented-MCL update (Thrun et al. Tab. 8.3) with ``control [control_dim]`` and one
         step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",

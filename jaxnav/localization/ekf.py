@@ -99,6 +99,10 @@ class KalmanInfo(NamedTuple):
         cholesky_failed: bool, a UKF factorisation fell back to the diagonal (EKF: always False).
         degenerate: bool, the step's result was not finite and was not applied: the state is carried
             over unchanged (:func:`jaxnav.core.kalman.finite_or_previous`).
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     estimate: jax.Array
@@ -110,6 +114,7 @@ class KalmanInfo(NamedTuple):
     num_gated: jax.Array
     cholesky_failed: jax.Array
     degenerate: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -138,10 +143,13 @@ def init(
     """The Gaussian prior ``N(initial_pose, initial_cov)``.
 
     Args:
+        key: ignored (the filter is deterministic): ``None`` or one PRNG key; a raw key of another
+            length or a batch of keys raises ``ValueError`` naming it.
         initial_pose: ``[3]`` (m, m, rad).
         initial_cov: ``[3, 3]`` symmetric positive definite (m², rad²); a
             non-positive-definite matrix raises ``ValueError``.
     """
+    filter_api.check_key(key, allow_none=True)
     validate_params(config, params)
     mean = jnp.asarray(initial_pose, jnp.result_type(float))
     state = KalmanState(mean, jnp.asarray(initial_cov, mean.dtype))
@@ -189,6 +197,7 @@ def _ekf_predict(mean, cov, f, q):
     return kalman.ekf_predict(mean, cov, f, q), jnp.zeros((), bool)
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array | None,
     state: KalmanState,
@@ -216,6 +225,7 @@ step, run = filter_api.build(
         check_params=validate_params,
         check_state=lambda config, params, state: validate_state(state),
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         deterministic=True,
         step_doc="""One EKF localization step ([A] Alg. 1): prediction with ``control [control_dim]``, then one update per

@@ -106,10 +106,9 @@ Units: metres and radians throughout; ``info.entropy`` in nats.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -117,7 +116,7 @@ import numpy as np
 from jax.scipy.special import erfc, logsumexp
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import weights
+from jaxnav.core import memory, weights
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -170,6 +169,8 @@ class GridConfig:
     """
 
     bounds: tuple[float, float, float, float] = (0.0, 10.0, 0.0, 10.0)
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("nx", "ny", "ntheta")
     nx: int = 40
     ny: int = 40
     ntheta: int = 36
@@ -213,24 +214,20 @@ BYTES_PER_CELL = 16
 
 def _check_grid_size(nx: int, ny: int, ntheta: int) -> None:
     """Refuse, before anything is allocated, a grid that cannot be indexed (more than 2³¹ − 1
-    cells) or whose step needs more memory than this machine has."""
+    cells) or whose step needs more memory than the device can hold
+    (:func:`jaxnav.core.memory.check_fits`, which :func:`jaxnav.core.memory.allow_large_allocations`
+    turns off)."""
     cells = nx * ny * ntheta
-    size = f"a {nx} × {ny} × {ntheta} grid has {cells:.3g} cells"
     if cells > np.iinfo(np.int32).max:
-        raise ValueError(f"{size}, more than the 2³¹ − 1 a grid can index: use fewer or larger cells")
-    need, have = cells * BYTES_PER_CELL, _physical_memory()
-    if have is not None and need > have:
         raise ValueError(
-            f"{size} and needs about {need / 2**30:.3g} GiB for a step, more than this machine's "
-            f"{have / 2**30:.3g} GiB: use fewer or larger cells"
+            f"a {nx} × {ny} × {ntheta} grid has {cells:.3g} cells, more than the 2³¹ − 1 a grid can index: "
+            "use fewer or larger cells"
         )
-
-
-def _physical_memory() -> int | None:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):  # not a POSIX system: the index limit alone
-        return None
+    memory.check_fits(
+        cells * BYTES_PER_CELL,
+        what=f"a step on a {nx} × {ny} × {ntheta} grid ({cells:.3g} cells)",
+        fields=f"nx ({nx}), ny ({ny}) or ntheta ({ntheta}): use fewer or larger cells",
+    )
 
 
 GridParams = lm.LandmarkMapParams
@@ -266,6 +263,10 @@ class GridInfo(NamedTuple):
         mass_lost: fraction of the belief that the prediction moved off the grid.
         kernel_truncation: largest fraction of an (x, y) motion kernel that fell
             outside the ``(2R + 1)²`` stencil (renormalised away).
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     estimate: jax.Array
@@ -276,6 +277,7 @@ class GridInfo(NamedTuple):
     num_ignored: jax.Array
     mass_lost: jax.Array
     kernel_truncation: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 class MotionKernels(NamedTuple):
@@ -544,6 +546,7 @@ def _float_dtype(landmarks: Any) -> Any:
 # init
 
 
+@memory.guard_init
 def init(
     key: jax.Array | None,
     config: GridConfig,
@@ -563,6 +566,7 @@ def init(
             (cloud-in-cell) way the prediction moves mass, so ``sd = 0`` puts a
             known pose on the (at most 2 × 2 × 2) cells around it.
     """
+    filter_api.check_key(key, allow_none=True)
     _validate_params(config, params)
     dtype = _float_dtype(params.landmarks)
     n = config.nx * config.ny * config.ntheta
@@ -609,6 +613,7 @@ def _gaussian_prior(config: GridConfig, pose: jax.Array, sd: jax.Array) -> jax.A
 # step and run
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array | None,
     state: GridState,
@@ -651,6 +656,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         deterministic=True,
         step_doc="""One grid-localization update ([A] Alg. 2): convolution prediction with ``control [control_dim]``, then

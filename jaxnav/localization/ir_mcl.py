@@ -117,28 +117,40 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
+    all_positive,
     check_choice,
     check_finite,
     check_fraction,
     check_magnitude,
     check_positive,
     check_positive_int,
+    check_real,
     check_shape,
+    finite_within,
     is_concrete,
 )
 from jaxnav.models import ir
 from jaxnav.models.ir import IRDetection
-from jaxnav.models.motion import MODELS, OdometryNoise, OmniNoise, VelocityNoise, get_motion_model, validate_controls
+from jaxnav.models.motion import (
+    MODELS,
+    OdometryNoise,
+    OmniNoise,
+    VelocityNoise,
+    controls_in_domain,
+    get_motion_model,
+    noise_in_domain,
+    validate_controls,
+)
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = [
@@ -194,6 +206,8 @@ class IRMCLConfig:
             docstring, "Heading").
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 1000
     motion_model: str = "omni_body"
     resampling: str = "systematic"
@@ -271,12 +285,16 @@ class IRMCLInfo(PFInfo):
             unique-ID detection.
         num_detections: int32, detections used to weight the particles.
         num_ignored: int32, valid detections not used (a repeated ID before
-            the start, an ID no emitter of the layout carries, or a level that is not
-            finite or beyond :data:`jaxnav.models.ir.MAX_VOLTAGE`, which the host refuses,
+            the start, an ID no emitter of the layout carries, or a level that is negative,
+            not finite or beyond :data:`jaxnav.models.ir.MAX_VOLTAGE`, which the host refuses,
             so only inside a caller's ``jit``).
         emitter: ``[R]`` int32 index of the emitter each receiver's detection
             was attributed to (eq. 5.1; −1 when the receiver's detection was
             not used).
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     started: jax.Array
@@ -284,6 +302,7 @@ class IRMCLInfo(PFInfo):
     num_detections: jax.Array
     num_ignored: jax.Array
     emitter: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -399,13 +418,31 @@ def _validate_inputs(config: IRMCLConfig, params: IRMCLParams, controls: Any, de
     for name in ("mask", "valid", "voltage"):
         check_shape(f"{dname}.{name}", getattr(det, name), t + (r,))
     check_shape(f"{dname}.amplitude", det.amplitude, t + (r, None))
+    check_real(f"{dname}.amplitude", det.amplitude)
     check_magnitude(f"{dname}.voltage", det.voltage, limit=ir.MAX_VOLTAGE)
+    ir.check_levels(f"{dname}.voltage", det.voltage)
+
+
+def _inputs_in_domain(config: IRMCLConfig, params: IRMCLParams, control: jax.Array, det: IRDetection) -> jax.Array:
+    """``bool[]``, traceable: the control and the motion noise in the motion model's domain
+    (:func:`jaxnav.models.motion.controls_in_domain`, :func:`jaxnav.models.motion.noise_in_domain`),
+    ``σ_V > 0``, ``detection_range > 0`` and ``log_floor ≤ 0``: the value checks of the host, as ``jnp``.
+    The detections are not part of it: an unusable level is dropped and counted."""
+    del det
+    return (
+        controls_in_domain(control, config.motion_model)
+        & noise_in_domain(config.motion_model, params.motion)
+        & all_positive(params.sigma_v)
+        & all_positive(params.detection_range)
+        & (params.log_floor <= 0)
+    )
 
 
 # ---------------------------------------------------------------------------
 # init
 
 
+@memory.guard_init
 def init(
     key: jax.Array,
     config: IRMCLConfig,
@@ -415,7 +452,8 @@ def init(
     """[W] Alg. 3 line 1: ``N`` poses uniform over ``area``, uniform weights, not started.
 
     Args:
-        key: PRNG key.
+        key: one PRNG key (``jax.random.key(seed)`` or ``jax.random.PRNGKey(seed)``); a raw key of
+            another length, a batch of keys or ``None`` raise ``ValueError`` naming it.
         config, params: as everywhere.
         area: ``(x_min, x_max, y_min, y_max)`` (m), e.g.
             :func:`jaxnav.sim.ir_world.layout_area`. Headings are uniform on
@@ -423,6 +461,7 @@ def init(
     """
     if not isinstance(config, IRMCLConfig):
         raise ValueError(f"config must be an IRMCLConfig, got {type(config).__name__}")
+    filter_api.check_key(key)
     _validate_params(config, params)
     try:
         x0, x1, y0, y1 = (float(b) for b in area)
@@ -504,6 +543,7 @@ def _loglik(particles, idx, apply, voltage, params):
     return jnp.sum(jnp.where(apply[None, :], ll, 0.0), axis=-1)
 
 
+@filter_api.guard_inputs(_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: IRMCLState,
@@ -520,9 +560,9 @@ def kernel(
     # Alg. 3 lines 2–4: move every particle
     moved = get_motion_model(config.motion_model).sample(k_move, state.particles, control, params.motion)
 
-    # a level that is not finite or beyond the limit (refused on the host, so only inside a caller's
-    # jit) makes its detection unusable: dropped and counted in num_ignored
-    readable = jnp.isfinite(det.voltage) & (jnp.abs(det.voltage) <= ir.MAX_VOLTAGE)
+    # a level that is negative, not finite or beyond the limit (refused on the host, so only inside a
+    # caller's jit) makes its detection unusable: dropped and counted in num_ignored
+    readable = finite_within(det.voltage, ir.MAX_VOLTAGE) & (det.voltage >= 0)
     num_unusable = jnp.sum(det.valid & ~readable, dtype=jnp.int32)
     det = det._replace(valid=det.valid & readable, voltage=jnp.where(readable, det.voltage, 0.0))
 
@@ -603,6 +643,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=_validate_inputs,
+        valid_inputs=_inputs_in_domain,
         prepare=_prepare,
         step_doc="""One step of [W] Alg. 3: move, (start,) attribute, weight, resample.
 

@@ -88,7 +88,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -96,7 +96,7 @@ import numpy as np
 from jax.scipy.special import ndtri
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
@@ -143,6 +143,8 @@ class KLDMCLConfig:
     k = 100 and ≈ 11,000 for k = 1,000 bins.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("max_particles",)
     max_particles: int = 5000
     min_particles: int = 100
     epsilon: float = 0.05
@@ -212,11 +214,16 @@ class KLDMCLInfo(PFInfo):
         num_ignored: int32, observation slots dropped because their id is not in the map.
         num_active: int32, the new active count ``n_t`` (after resampling).
         num_bins: int32, ``k(n_t)``: occupied bins among the first ``n_t`` candidates.
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     num_ignored: jax.Array
     num_active: jax.Array
     num_bins: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -303,6 +310,7 @@ def _with_count(state: mcl.MCLState, n: int) -> KLDMCLState:
     return KLDMCLState(state.particles, state.log_weights, jnp.asarray(n, jnp.int32))
 
 
+@memory.guard_init
 def init(
     key: jax.Array,
     config: KLDMCLConfig,
@@ -314,14 +322,17 @@ def init(
 
     The same draw as :func:`jaxnav.localization.mcl.init` with ``N_max`` particles.
     """
+    filter_api.check_key(key)
     _validate_params(config, params)
     return _with_count(mcl.init(key, _as_mcl_config(config), params, initial_pose, initial_sd), config.max_particles)
 
 
+@memory.guard_init
 def init_uniform(
     key: jax.Array, config: KLDMCLConfig, params: MCLParams, bounds: tuple[float, float, float, float]
 ) -> KLDMCLState:
     """Global localization: all ``N_max`` slots active, uniform in ``bounds = (x_min, x_max, y_min, y_max)`` (m), θ uniform."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     return _with_count(mcl.init_uniform(key, _as_mcl_config(config), params, bounds), config.max_particles)
 
@@ -330,6 +341,7 @@ def init_uniform(
 # step and run
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: KLDMCLState,
@@ -403,6 +415,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         step_doc="""One KLD-sampling MCL update (Thrun et al. Tab. 8.4, fixed shapes) with ``control
         [control_dim]`` and one step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",

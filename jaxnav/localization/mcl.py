@@ -37,14 +37,14 @@ every jaxnav resampler.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite, materialize
 from jaxnav.core.validation import (
     check_bounds,
@@ -90,6 +90,8 @@ class MCLConfig:
             ([A] §4.3.3); meant for static targets, off for a moving robot.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 1000
     motion_model: str = "velocity"
     resampling: str = "systematic"
@@ -132,9 +134,14 @@ class MCLInfo(PFInfo):
         log_likelihood: ``log p(z_t | z_{1:t−1})`` estimate (−inf if degenerate).
         degenerate: bool, every particle had zero likelihood; weights were reset.
         num_ignored: int32, observation slots dropped because their id is not in the map.
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     num_ignored: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -156,6 +163,7 @@ def _validate_state(config: MCLConfig, params: Any, state: MCLState) -> None:
 # init
 
 
+@memory.guard_init
 def init(
     key: jax.Array,
     config: MCLConfig,
@@ -166,12 +174,14 @@ def init(
     """Particles drawn from ``N(initial_pose, diag(initial_sd²))``, uniform weights.
 
     Args:
-        key: PRNG key.
+        key: one PRNG key (``jax.random.key(seed)`` or ``jax.random.PRNGKey(seed)``); a raw key of
+            another length, a batch of keys or ``None`` raise ``ValueError`` naming it.
         config, params: as everywhere.
         initial_pose: ``[3]`` (m, m, rad).
         initial_sd: ``[3]`` standard deviations (m, m, rad); zeros (the
             default) start every particle at the known pose (pose tracking).
     """
+    filter_api.check_key(key)
     _validate_params(config, params)
     initial_pose = float_array("initial_pose", initial_pose)
     check_shape("initial_pose", initial_pose, (3,))
@@ -186,10 +196,12 @@ def init(
     return MCLState(particles, _uniform(n, initial_pose.dtype))
 
 
+@memory.guard_init
 def init_uniform(
     key: jax.Array, config: MCLConfig, params: MCLParams, bounds: tuple[float, float, float, float]
 ) -> MCLState:
     """Global localization: positions uniform in ``bounds = (x_min, x_max, y_min, y_max)`` (m), θ uniform."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     x0, x1, y0, y1 = check_bounds("bounds", bounds)
     n = config.num_particles
@@ -251,6 +263,7 @@ def move_and_weight(
     return Weighted(moved, norm, jnp.exp(norm.log_weights), num_ignored)
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: MCLState,
@@ -283,6 +296,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         step_doc="""One MCL update ([A] Alg. 3) with ``control [control_dim]`` and one step's observations
         (:class:`~jaxnav.models.landmarks.RangeBearingObs` with slots ``[K]``).""",

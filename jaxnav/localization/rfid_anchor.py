@@ -53,16 +53,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import rng, weights
+from jaxnav.core import memory, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
+    all_finite_within,
+    all_nonnegative,
     check_choice,
     check_finite,
     check_fraction,
@@ -70,6 +72,7 @@ from jaxnav.core.validation import (
     check_nonnegative,
     check_positive,
     check_positive_int,
+    check_real,
     check_shape,
     is_concrete,
 )
@@ -123,6 +126,8 @@ class RFIDAnchorConfig:
         antenna_softness: optional relaxation (rad) of the antenna steps.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 2000
     weighting: str = "combined"
     ess_threshold: float = 0.5
@@ -176,10 +181,15 @@ class RFIDAnchorInfo(PFInfo):
     ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``, and
     ``num_ignored``: valid reads dropped because a value was not finite or out of range
     (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside a
-    caller's ``jit``)."""
+    caller's ``jit``), and ``invalid_inputs``: the step's control or parameters were outside the
+    models' domain (a negative noise sd, a zero or negative power, gain, ``k``, ``θ`` or
+    ``σ_phase``, a value that is not finite or exceeds
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+    caller's ``jit``: the state was carried over unchanged."""
 
     num_reads: jax.Array
     num_ignored: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 def default_params(
@@ -245,10 +255,12 @@ def _validate_params(p: RFIDAnchorParams) -> None:
             raise ValueError("anchor heights must be ≥ 0 (the ground is z = 0)")
 
 
+@memory.guard_init
 def init(key: jax.Array, config: RFIDAnchorConfig, params: RFIDAnchorParams) -> RFIDAnchorState:
     """[A] Alg. 8 lines 4–8: uniform positions, yaw in ``heading_range``, offsets on the circle."""
     if not isinstance(config, RFIDAnchorConfig):
         raise ValueError(f"config must be an RFIDAnchorConfig, got {type(config).__name__}")
+    filter_api.check_key(key)
     _validate_params(params)
     m, g = config.num_particles, params.anchors.shape[0]
     k1, k2, k3 = jax.random.split(key, 3)
@@ -263,6 +275,23 @@ def _angle_dims(g: int) -> tuple[int, ...]:
     return (3,) + tuple(range(4, 4 + g))
 
 
+def _inputs_in_domain(
+    config: RFIDAnchorConfig, params: RFIDAnchorParams, control: jax.Array, reads: AnchorReads
+) -> jax.Array:
+    """``bool[]``, traceable: the odometry increment finite and at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE`, the noise sd's non-negative and the read model in
+    its domain (:func:`jaxnav.models.uhf_rfid.read_model_in_domain`): the value checks of the host, as
+    ``jnp``. The reads are not part of it: an unusable read is dropped and counted."""
+    del config, reads
+    return (
+        all_finite_within(control)
+        & all_nonnegative(params.odometry_sd)
+        & all_nonnegative(params.offset_sd)
+        & U.read_model_in_domain(params.channel, params.gamma, params.phase_sigma)
+    )
+
+
+@filter_api.guard_inputs(_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: RFIDAnchorState,
@@ -333,6 +362,7 @@ def _validate_inputs(
         raise ValueError(f"reads must be an AnchorReads, got {type(reads).__name__}")
     shape = np.shape(controls)[:lead] + (g,)
     for name in AnchorReads._fields:
+        check_real(f"reads.{name}", getattr(reads, name))
         if np.shape(getattr(reads, name)) != shape:
             raise ValueError(
                 f"reads.{name} must have shape {shape} (one slot per anchor), got {np.shape(getattr(reads, name))}"
@@ -363,6 +393,7 @@ step, run = filter_api.build(
         check_params=lambda config, params: _validate_params(params),
         check_state=_validate_state,
         check_inputs=_validate_inputs,
+        valid_inputs=_inputs_in_domain,
         prepare=_prepare,
         step_doc="""One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors
         read (``reads`` an :class:`AnchorReads` of ``[G]``).""",

@@ -62,14 +62,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import (
     check_choice,
@@ -131,6 +131,8 @@ class RFIDTagConfig:
             gradients with respect to positions; None is [A]'s stepped model.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 2000
     dims: int = 3
     weighting: str = "combined"
@@ -191,10 +193,15 @@ class RFIDTagInfo(PFInfo):
         num_ignored: int32, valid reads dropped because a value was not finite or out of range
             (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside
             a caller's ``jit``).
+        invalid_inputs: bool, the step's parameters were outside the models' domain (a zero or negative
+            power, gain, ``k``, ``θ`` or ``σ_phase``, an empty search box, a value that is not
+            finite or exceeds :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host,
+            so only inside a caller's ``jit``: the state was carried over unchanged.
     """
 
     num_reads: jax.Array
     num_ignored: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 def default_params(
@@ -247,10 +254,12 @@ def _validate_params(params: RFIDTagParams) -> None:
         raise ValueError(f"the search box must lie above the ground z = 0 (box_lo z = {lo[2]:g})")
 
 
+@memory.guard_init
 def init(key: jax.Array, config: RFIDTagConfig, params: RFIDTagParams) -> RFIDTagState:
     """[A] Alg. 6 lines 4–7: ``M`` particles uniform in the box, ``θ_off`` uniform, equal weights."""
     if not isinstance(config, RFIDTagConfig):
         raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
+    filter_api.check_key(key)
     _validate_params(params)
     return _init(key, config, params)
 
@@ -361,6 +370,16 @@ def resample(
     return jnp.concatenate([xyz, new[:, 3:]], axis=-1), log_weights
 
 
+def _inputs_in_domain(config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> jax.Array:
+    """``bool[]``, traceable: the read model in its domain (:func:`jaxnav.models.uhf_rfid.read_model_in_domain`)
+    and a search box of positive volume above the ground: the value checks of the host, as ``jnp``.
+    The reads are not part of it: an unusable read is dropped and counted."""
+    del config, reads
+    lo, hi = params.box_lo, params.box_hi
+    return U.read_model_in_domain(params.channel, params.gamma, params.phase_sigma) & jnp.all(hi > lo) & (lo[2] >= 0)
+
+
+@filter_api.guard_inputs(_inputs_in_domain)
 def kernel(
     key: jax.Array, state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads
 ) -> tuple[RFIDTagState, RFIDTagInfo]:
@@ -401,6 +420,7 @@ step, run = filter_api.build(
         check_params=lambda config, params: _validate_params(params),
         check_state=_validate_state,
         check_inputs=_validate_inputs,
+        valid_inputs=_inputs_in_domain,
         prepare=lambda config, reads: (_as_reads(reads),),
         step_doc="""One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (a
         :class:`~jaxnav.models.uhf_rfid.UHFReads` with mask shape ``[J]``); the reads are cast to float32.""",
@@ -423,6 +443,7 @@ def run_tags_jitted(
     own ``cond``, so only the tags that resample pay for it. A step where none does costs
     G likelihoods.
     """
+    filter_api.check_key(key)
     g = reads.mask.shape[0]
     tag_keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.arange(g))
     reads_t = jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, 1, 0), reads)  # [T, G, ...]
@@ -448,7 +469,11 @@ def run_tags_jitted(
         particles, log_weights = jax.lax.cond(
             jnp.any(w.info.resampled), resample_some, lambda: (carry.particles, w.log_weights)
         )
-        return RFIDTagState(particles, log_weights), w.info
+        # the guard of kernel (filter_api.guard_inputs): parameters outside the domain keep every tag's state
+        ok = filter_api.inputs_in_domain(_inputs_in_domain, config, params, r)
+        particles = jnp.where(ok, particles, carry.particles)
+        log_weights = jnp.where(ok, log_weights, carry.log_weights)
+        return RFIDTagState(particles, log_weights), filter_api.flag_invalid_inputs(w.info, jnp.full((g,), ok))
 
     final, trace = jax.lax.scan(body, states, (jnp.arange(reads_t.mask.shape[0]), reads_t))
     return final, jax.tree_util.tree_map(lambda x: jnp.moveaxis(x, 0, 1), trace)
@@ -473,6 +498,7 @@ def run_tags(
     """
     if not isinstance(config, RFIDTagConfig):
         raise ValueError(f"config must be an RFIDTagConfig, got {type(config).__name__}")
+    filter_api.check_key(key)
     _validate_params(params)
     U.validate_reads(reads)
     if len(np.shape(reads.mask)) != 3:

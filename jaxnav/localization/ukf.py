@@ -74,9 +74,11 @@ def init(
     key: jax.Array | None, config: UKFConfig, params: KalmanParams, initial_pose: jax.Array, initial_cov: jax.Array
 ) -> KalmanState:
     """The Gaussian prior ``N(initial_pose, initial_cov)`` (as :func:`jaxnav.localization.ekf.init`)."""
+    filter_api.check_key(key, allow_none=True)
     return ekf.init(None, config, params, initial_pose, initial_cov)
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array | None,
     state: KalmanState,
@@ -107,6 +109,7 @@ step, run = filter_api.build(
         check_params=ekf.validate_params,
         check_state=lambda config, params, state: ekf.validate_state(state),
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         deterministic=True,
         step_doc="""One UKF localization step (unscented prediction and sequential updates). Deterministic: ``key`` is not

@@ -52,11 +52,13 @@ import numpy as np
 from jaxnav.core import fastmath, rng
 from jaxnav.core.kalman import UpdateResult, ensure_pd, symmetrize
 from jaxnav.core.validation import (
+    all_positive,
     check_finite,
     check_positive,
     check_positive_int,
     check_shape,
     check_slots,
+    first_index,
     is_concrete,
 )
 
@@ -68,6 +70,7 @@ __all__ = [
     "default_reader_offsets",
     "reader_params",
     "validate_params",
+    "reader_params_in_domain",
     "validate_detections",
     "robot_frame",
     "world_frame",
@@ -187,6 +190,13 @@ def validate_params(params: HFReaderParams, argument: str = "params.sensor") -> 
         raise ValueError(f"{argument}.log_beta must be ≤ 0 (β ≤ 1), got {float(lb)}")
 
 
+def reader_params_in_domain(params: HFReaderParams) -> jax.Array:
+    """``bool[]``, traceable: ``half_width`` in ``(0, MAX_MAGNITUDE]`` and ``log β ≤ 0``, the value
+    checks of :func:`validate_params` as a ``jnp`` expression for use inside a ``jit`` (a zero or
+    negative σ divides [W] eq. 3.7's residual by zero or flips the footprint)."""
+    return all_positive(params.half_width) & jnp.all(jnp.asarray(params.log_beta) <= 0)
+
+
 def validate_detections(
     det: TagDetections, time_axis: bool, num_readers: int | None = None, name: str = "observations"
 ) -> None:
@@ -294,8 +304,25 @@ def footprint_cov(params: HFReaderParams) -> jax.Array:
 
 
 def landmark_observations(detections: TagDetections, params: HFReaderParams) -> ReaderObservations:
-    """FastSLAM observation slots: ``z[k] = offsets[readers[k]]`` (works with a leading time axis)."""
-    readers = jnp.clip(detections.readers, 0, params.offsets.shape[0] - 1)
+    """FastSLAM observation slots: ``z[k] = offsets[readers[k]]`` (m, robot frame; works with a
+    leading time axis).
+
+    On the host a detection (mask set) whose reader index is outside ``[0, B)`` for the ``B`` rows
+    of ``params.offsets`` raises ``ValueError`` naming ``detections.readers``, the first such index
+    and its slot. Inside a caller's ``jit`` the values are unknown: the index is clipped into range.
+    """
+    num_readers = np.shape(params.offsets)[0]
+    if is_concrete((detections.readers, detections.mask)):
+        r = np.asarray(detections.readers)
+        bad = np.asarray(detections.mask, bool) & ((r < 0) | (r >= num_readers))
+        if bad.any():
+            where = first_index(bad)
+            raise ValueError(
+                f"detections.readers must index the {num_readers} readers of params.offsets (0 to "
+                f"{num_readers - 1}) where a detection is set, got {int(r[where])} at index {where} "
+                f"({int(bad.sum())} such slot(s))"
+            )
+    readers = jnp.clip(detections.readers, 0, num_readers - 1)
     return ReaderObservations(detections.ids, params.offsets[readers], detections.mask)
 
 

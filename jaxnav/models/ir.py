@@ -116,7 +116,14 @@ import numpy as np
 import optax
 
 from jaxnav.core.optim import lbfgs_minimize
-from jaxnav.core.validation import check_finite, check_positive, check_positive_int, check_shape
+from jaxnav.core.validation import (
+    check_finite,
+    check_positive,
+    check_positive_int,
+    check_shape,
+    first_index,
+    is_concrete,
+)
 
 __all__ = [
     "IRDetection",
@@ -161,6 +168,7 @@ __all__ = [
     "log_belief",
     "select_emitter",
     "MAX_VOLTAGE",
+    "check_levels",
 ]
 
 # --------------------------------------------------------------------------------------
@@ -365,7 +373,9 @@ class IRDetection(NamedTuple):
     Attributes:
         mask: ``[R]`` int32 ID bitmask of the detected emitter (0 when invalid).
         valid: ``[R]`` bool, True for a clean detection (the rules of :mod:`jaxnav.sim.ir_receiver`).
-        voltage: ``[R]`` float32 level V (V) of the detected emitter (0 when invalid).
+        voltage: ``[R]`` float32 level V ≥ 0 (V) of the detected emitter (0 when invalid):
+            the receiver detects an emitter only when its level is positive
+            (:mod:`jaxnav.sim.ir_receiver`), so a negative level is refused (:func:`check_levels`).
         amplitude: ``[R, 9]`` float32 on-amplitude estimate â per code (V).
     """
 
@@ -694,6 +704,24 @@ level beyond ±100 V is a unit or data error, not a reading."""
 
 W_VOLTAGE_MODEL = VoltageModel(c2=-3.27e-5, c1=2.855e-3, c0=1.81997)
 """[W] eq. 5.3, fitted by [W] at 1.2 m emitter–receiver height."""
+
+
+def check_levels(name: str, voltage: Any) -> None:
+    """Host-side check of receiver levels ``voltage`` (V): none negative. The receiver reports a
+    detection only when its level ``V = V_sat·tanh(a/V_sat) − V_off`` is positive, and 0 in an
+    empty slot (:mod:`jaxnav.sim.ir_receiver`), so a negative level is a sign or unit error.
+    Raises ``ValueError`` naming ``name``, the first negative level and its index; skipped for
+    tracers (inside a caller's ``jit`` the filter drops such a detection and counts it)."""
+    if not is_concrete(voltage):
+        return
+    v = np.asarray(voltage, np.float64)
+    negative = v < 0
+    if negative.any():
+        where = first_index(negative)
+        raise ValueError(
+            f"{name} holds {int(negative.sum())} negative level(s), the first ({float(v[where]):g} V) at index "
+            f"{where}: a receiver level is ≥ 0 V (a detection needs V > 0; an empty slot holds 0)"
+        )
 
 
 def expected_voltage(model: VoltageModel, e_d_m: jax.Array) -> jax.Array:

@@ -27,7 +27,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath
-from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, check_positive, check_shape, check_slots, check_type
+from jaxnav.core.validation import (
+    MAX_MAGNITUDE,
+    all_positive,
+    check_magnitude,
+    check_positive,
+    check_shape,
+    check_slots,
+    check_type,
+    finite_within,
+)
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
 
@@ -45,6 +54,8 @@ __all__ = [
     "validate_map_params",
     "validate_steps",
     "usable_measurements",
+    "noise_in_domain",
+    "filter_inputs_in_domain",
 ]
 
 
@@ -112,7 +123,7 @@ def usable_measurements(z: jax.Array) -> jax.Array:
     """``[K]`` bool: the slot's measurement ``z [K, D]`` is finite and at most
     :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude. The host checks refuse other
     values; inside a caller's ``jit`` the filters drop (and count) such slots instead."""
-    return jnp.all(jnp.isfinite(z) & (jnp.abs(z) <= MAX_MAGNITUDE), axis=-1)
+    return jnp.all(finite_within(z, MAX_MAGNITUDE), axis=-1)
 
 
 def log_likelihood(
@@ -222,6 +233,26 @@ def validate_map_params(motion_model: str, params: Any) -> None:
     if np.shape(params.landmarks)[0] < 1:
         raise ValueError("params.landmarks must hold at least one landmark")
     check_magnitude("params.landmarks", params.landmarks)
+
+
+def noise_in_domain(params: RangeBearingNoise) -> jax.Array:
+    """``bool[]``, traceable: ``σ_r, σ_φ`` in ``(0, MAX_MAGNITUDE]``, the value check of :func:`validate_noise`
+    as a ``jnp`` expression (a zero or negative σ divides the residual by zero or flips its sign)."""
+    return all_positive(params.sd)
+
+
+def filter_inputs_in_domain(config: Any, params: Any, control: jax.Array, obs: RangeBearingObs) -> jax.Array:
+    """``bool[]``, traceable: a landmark-map filter's step inputs are in the models' domain (the
+    ``valid_inputs`` of its :class:`~jaxnav.core.filter.FilterSpec`): the control
+    (:func:`jaxnav.models.motion.controls_in_domain`), the motion noise
+    (:func:`jaxnav.models.motion.noise_in_domain`) and the range-bearing noise (:func:`noise_in_domain`).
+    The observations are not part of it: an unusable slot is dropped and counted (:func:`lookup`)."""
+    del obs
+    return (
+        motion.controls_in_domain(control, config.motion_model)
+        & motion.noise_in_domain(config.motion_model, params.motion)
+        & noise_in_domain(params.sensor)
+    )
 
 
 def check_filter_inputs(config: Any, params: Any, controls: jax.Array, obs: RangeBearingObs, time_axis: bool) -> None:

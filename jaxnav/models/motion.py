@@ -49,7 +49,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import fastmath, rng
-from jaxnav.core.validation import as_array, check_magnitude, check_nonnegative, check_shape, first_index, is_concrete
+from jaxnav.core.validation import (
+    all_finite_within,
+    all_nonnegative,
+    as_array,
+    check_magnitude,
+    check_nonnegative,
+    check_shape,
+    first_index,
+    is_concrete,
+)
 from jaxnav.core.weights import wrap_angle
 
 __all__ = [
@@ -77,6 +86,8 @@ __all__ = [
     "get_motion_model",
     "validate_noise",
     "validate_controls",
+    "noise_in_domain",
+    "controls_in_domain",
 ]
 
 
@@ -467,6 +478,25 @@ def validate_noise(name: str, params: object, argument: str = "params.motion") -
     model.validate(params)
 
 
+def noise_in_domain(name: str, params: object) -> jax.Array:
+    """``bool[]``, traceable: every noise level of motion model ``name``'s ``params`` (α's, σ's) is
+    finite and in ``[0, MAX_MAGNITUDE]``, the value checks of :func:`validate_noise` as a ``jnp``
+    expression for use inside a ``jit`` (a negative α makes ``√(α₁v² + α₂ω²)`` NaN)."""
+    get_motion_model(name)
+    return jnp.all(jnp.stack([all_nonnegative(leaf) for leaf in jax.tree_util.tree_leaves(params)]))
+
+
+def controls_in_domain(controls: jax.Array, model: str) -> jax.Array:
+    """``bool[]``, traceable: ``controls [..., dim]`` of motion model ``model`` are finite, at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude, with ``Δt ≥ 0`` s where the control
+    carries a time step: the value checks of :func:`validate_controls` as a ``jnp`` expression."""
+    spec = get_motion_model(model)
+    ok = all_finite_within(controls)
+    if spec.dt_index is not None:
+        ok = ok & jnp.all(controls[..., spec.dt_index] >= 0)
+    return ok
+
+
 def validate_controls(name: str, controls: object, model: str, time_axis: bool) -> object:
     """Host-side check of controls of motion model ``model`` (``[T, dim]`` with ``time_axis``, else
     ``[dim]``), named ``name``: the model's dimension, finite values of at most
@@ -480,7 +510,7 @@ def validate_controls(name: str, controls: object, model: str, time_axis: bool) 
     check_magnitude(name, controls)
     if spec.dt_index is not None and is_concrete(controls):
         dt = np.asarray(controls)[..., spec.dt_index]
-        if np.any(dt < 0):
+        if (dt < 0).any():  # the method: np.any's dispatch costs more than the test on a few numbers
             where = first_index(dt < 0) + (spec.dt_index,)
             raise ValueError(
                 f"{name} holds a negative time step Δt (column {spec.dt_index} of a {model!r} control), the "

@@ -135,9 +135,11 @@ import numpy as np
 from jax.scipy.special import gammaln
 
 from jaxnav.core.validation import (
+    all_positive,
     check_finite,
     check_nonnegative,
     check_positive,
+    check_real,
     check_shape,
     check_type,
     is_concrete,
@@ -162,6 +164,7 @@ __all__ = [
     "read_log_terms",
     "read_model_float32",
     "validate_read_model",
+    "read_model_in_domain",
     "dbm_to_watt",
     "watt_to_dbm",
     "db_to_linear",
@@ -424,6 +427,8 @@ def validate_reads(reads: UHFReads, name: str = "reads") -> None:
         mask_dtype = np.asarray(reads.mask).dtype
     if np.result_type(mask_dtype) != np.bool_:
         raise ValueError(f"{name}.mask must be boolean, got {mask_dtype}")
+    for field in ("reader", "rssi", "phase", "wavelength"):
+        check_real(f"{name}.{field}", getattr(reads, field))
     if not is_concrete(reads):
         return
     m = np.asarray(reads.mask)
@@ -831,6 +836,18 @@ def validate_read_model(channel: ChannelParams, gamma: GammaParams, phase_sigma:
     validate_gamma(gamma)
     check_shape(f"{prefix}.phase_sigma", phase_sigma, ())
     check_positive(f"{prefix}.phase_sigma (σ_phase, m)", phase_sigma)
+
+
+def read_model_in_domain(channel: ChannelParams, gamma: GammaParams, phase_sigma: Any) -> jax.Array:
+    """``bool[]``, traceable: the value checks of :func:`validate_read_model` as a ``jnp`` expression,
+    for use inside a ``jit``: every power, gain, wavelength, ``φ_s``, ``k``, ``θ`` and ``σ_phase``
+    positive, ``η_T ≤ 1`` and ``φ_s ≤ π/2`` (a zero or negative one makes a logarithm NaN)."""
+    positive = [all_positive(leaf) for leaf in jax.tree_util.tree_leaves((channel, gamma, phase_sigma))]
+    return (
+        jnp.all(jnp.stack(positive))
+        & jnp.all(jnp.asarray(channel.tag_efficiency) <= 1.0)
+        & jnp.all(jnp.asarray(channel.antenna.phi_s) <= math.pi / 2 + 1e-7)
+    )
 
 
 def _log_gain_stepped(dot, dist, params: AntennaParams):

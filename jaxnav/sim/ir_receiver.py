@@ -131,6 +131,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import rng
+from jaxnav.core.filter import check_key
 from jaxnav.core.validation import (
     check_finite,
     check_nonnegative,
@@ -479,6 +480,7 @@ def sample_waveform(
     plus Gaussian noise ``noise_sd`` per sample. Differentiable in ``params``
     and ``pose``.
     """
+    check_key(key)
     _check_pose(pose)
     _check_layout(layout)
     validate_params(params)
@@ -568,6 +570,7 @@ def detect(
     config: ReceiverConfig = DEFAULT_CONFIG,
 ) -> IRDetection:
     """:func:`sample_waveform` then :func:`decode` against ``layout``: one window's detections."""
+    check_key(key)
     _check_pose(pose)
     _check_layout(layout)
     validate_params(params)
@@ -639,6 +642,7 @@ def calibration_sweep(
     Returns:
         ``(e_d_mm [n], volts [n])``.
     """
+    check_key(key)
     check_positive("height (emitter-to-receiver height, m)", height)
     if offsets_mm is None:
         offsets_mm = np.arange(0.0, 301.0, 10.0)

@@ -90,6 +90,10 @@ def simulate(
     :data:`~jaxnav.core.validation.MAX_MAGNITUDE`, controls ``[T, control_dim]`` of the model with
     ``Δt ≥ 0``, the model's noise and a range-bearing noise, ``max_range > 0`` and
     ``0 < fov ≤ 2π``. Lists are accepted as arrays. Jitted; the same shapes never retrace.
+
+    The floating-point arrays (landmarks, pose, controls, noise levels) are promoted to one dtype,
+    ``jnp.result_type`` of them all: float32 controls with float64 landmarks under
+    ``jax_enable_x64`` simulate in float64, and the run's arrays come out in it.
     """
     check_key(key)
     landmarks = float_array("landmarks", landmarks)
@@ -106,6 +110,10 @@ def simulate(
     check_positive("fov", fov)
     if is_concrete(fov) and np.any(np.asarray(fov) > 2.0 * math.pi + 1e-6):
         raise ValueError(f"fov must be in (0, 2π] rad, got {np.asarray(fov)}")
+    dtype = jnp.result_type(landmarks, initial_pose, controls, *jax.tree_util.tree_leaves((motion_noise, sensor_noise)))
+    landmarks, initial_pose, controls, motion_noise, sensor_noise = jax.tree_util.tree_map(
+        lambda x: jnp.asarray(x, dtype), (landmarks, initial_pose, controls, motion_noise, sensor_noise)
+    )
     return _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise, motion_model, max_range, fov)
 
 

@@ -696,6 +696,7 @@ def kidnapping_scenario(
             arguments are as in :func:`jaxnav.sim.trajectories.rectangle_controls` and
             :func:`simulate`.
     """
+    check_key(key)
     if not 0.0 <= float(kidnap_to) < float(kidnap_from) <= 1.0:
         raise ValueError(
             f"need 0 ≤ kidnap_to < kidnap_from ≤ 1 (fractions of the first lap), got {kidnap_to!r}, {kidnap_from!r}"

@@ -21,6 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import rng
+from jaxnav.core.filter import check_key
+from jaxnav.core.validation import check_nonnegative_int
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models.motion import get_motion_model, omni_mean
 
@@ -28,8 +30,13 @@ __all__ = ["loop_controls", "rectangle_controls", "random_controls", "integrate_
 
 
 def loop_controls(num_steps: int, speed: float = 0.5, turn_rate: float = 0.15, dt: float = 0.25) -> jax.Array:
-    """Constant velocity-model controls ``[T, 3] = (v [m/s], ω [rad/s], Δt [s])``: a circle."""
-    return jnp.tile(jnp.asarray([speed, turn_rate, dt], jnp.float32), (int(num_steps), 1))
+    """Constant velocity-model controls ``[T, 3] = (v [m/s], ω [rad/s], Δt [s])``: a circle.
+
+    ``num_steps`` is ``T``, an integer ≥ 0 (0 gives an empty ``[0, 3]`` sequence); anything else
+    raises ``ValueError`` naming it.
+    """
+    num_steps = check_nonnegative_int("num_steps", num_steps)
+    return jnp.tile(jnp.asarray([speed, turn_rate, dt], jnp.float32), (num_steps, 1))
 
 
 def _check_speed(name: str, value) -> float:
@@ -149,7 +156,7 @@ def random_controls(
     Args:
         key: PRNG key.
         bounds: ``(xmin, ymin, xmax, ymax)`` (m).
-        num_steps: ``T``.
+        num_steps: ``T``, an integer ≥ 0 (0 gives an empty ``[0, 4]`` sequence).
         speed_range: ``(min, max)`` speed (m/s), ``0 < min ≤ max``.
         dt: step (s).
         start: ``(x, y)`` start inside ``bounds``; default the centre. Start heading 0.
@@ -159,12 +166,12 @@ def random_controls(
     Returns:
         ``(start_pose [3], controls [T, 4])`` rows ``(v_x, v_y, ω, Δt)``, world frame.
     """
+    check_key(key)
     try:
         xmin, ymin, xmax, ymax = (float(b) for b in bounds)
     except (TypeError, ValueError):
         raise ValueError(f"bounds must be (xmin, ymin, xmax, ymax) in m, got {bounds!r}") from None
-    if isinstance(num_steps, bool) or not isinstance(num_steps, (int, np.integer)) or num_steps < 1:
-        raise ValueError(f"num_steps must be a positive integer, got {num_steps!r}")
+    num_steps = check_nonnegative_int("num_steps", num_steps)
     lo_s = _check_speed("speed_range[0]", speed_range[0])
     hi_s = _check_speed("speed_range[1]", speed_range[1])
     if hi_s < lo_s:

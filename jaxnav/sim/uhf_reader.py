@@ -491,6 +491,7 @@ def anchor_position(
         if not inside(q):
             raise ValueError(f"the anchor {q.tolist()} is outside the box / below the ground; choose another direction")
         return q
+    check_key(key)
     tries = check_positive_int("tries", tries)
     u = np.asarray(rng.normal(key, (tries, 3), jnp.float32), np.float64)
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-30)

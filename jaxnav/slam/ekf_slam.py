@@ -83,14 +83,14 @@ slots; under ``vmap`` the branches become selects and every slot costs
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import kalman
+from jaxnav.core import kalman, memory
 from jaxnav.core.validation import (
     check_choice,
     check_covariance,
@@ -135,6 +135,8 @@ class EKFSLAMConfig:
             the χ²₂ quantile of that probability; None disables gating.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_landmarks",)
     num_landmarks: int = 8
     motion_model: str = "velocity"
     gate_probability: float | None = None
@@ -200,6 +202,10 @@ class EKFSLAMInfo(NamedTuple):
         num_new: landmarks initialised in this step.
         degenerate: bool, the step's result was not finite and was not applied: the state is carried
             over unchanged (:func:`jaxnav.core.kalman.finite_or_previous`).
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     estimate: jax.Array
@@ -214,6 +220,7 @@ class EKFSLAMInfo(NamedTuple):
     num_gated: jax.Array
     num_new: jax.Array
     degenerate: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -269,6 +276,7 @@ def _landmark_prior(config: EKFSLAMConfig, landmarks, landmark_cov, known, dtype
     return means, jnp.where(known[:, None, None], blocks, placeholder), known
 
 
+@memory.guard_init
 def init(
     key: jax.Array | None,
     config: EKFSLAMConfig,
@@ -292,6 +300,7 @@ def init(
         known: optional ``[M]`` bool, which of ``landmarks`` are known
             (default all); the others start unseen.
     """
+    filter_api.check_key(key, allow_none=True)
     validate_params(config, params)
     dtype = jnp.result_type(float)
     check_shape("initial_pose", initial_pose, (POSE_DIM,))
@@ -424,6 +433,7 @@ def _correct(mean, cov, seen, obs: lm.RangeBearingObs, r, gate):
     return mean, cov, seen, nis, jnp.sum(ll), accepted, counts
 
 
+@filter_api.guard_inputs(lm.filter_inputs_in_domain)
 def kernel(
     key: jax.Array | None,
     state: EKFSLAMState,
@@ -470,6 +480,7 @@ step, run = filter_api.build(
         check_params=validate_params,
         check_state=validate_state,
         check_inputs=lm.check_filter_inputs,
+        valid_inputs=lm.filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         deterministic=True,
         step_doc="""One EKF-SLAM step ([A] Alg. 4). Deterministic: ``key`` is not used (``None`` is accepted).""",

@@ -65,15 +65,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import partial
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath, kalman, resampling, rng, weights
+from jaxnav.core import fastmath, kalman, memory, resampling, rng, weights
 from jaxnav.core import filter as filter_api
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
+from jaxnav.core.particle_filter import PFInfo, at_least_one_slot, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_covariances,
@@ -86,7 +86,7 @@ from jaxnav.core.validation import (
     check_slots,
 )
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
+from jaxnav.models.motion import MODELS, controls_in_domain, get_motion_model, noise_in_domain, validate_controls
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 from jaxnav.models.observation import HF_FOOTPRINT, OBSERVATION_MODELS, RANGE_BEARING, ObservationModel
 
@@ -165,6 +165,8 @@ class FastSLAMConfig:
             that resampling copies from ``D + D²`` to ``D`` floats per landmark.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles", "num_landmarks")
     num_particles: int = 100
     num_landmarks: int = 16
     version: int = 1
@@ -262,10 +264,15 @@ class FastSLAMInfo(PFInfo):
         degenerate: bool, all weights were zero and were reset.
         num_ignored: valid slots whose id is outside ``[0, M)``.
         num_new: landmarks initialised this step.
+        invalid_inputs: bool, the step's control or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged.
     """
 
     num_ignored: jax.Array
     num_new: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -317,6 +324,7 @@ def _validate_inputs(
 # init
 
 
+@memory.guard_init
 def init(
     key: jax.Array,
     config: FastSLAMConfig,
@@ -337,6 +345,7 @@ def init(
             ``1e-2 I`` m²), each symmetric positive definite (else ``ValueError`` naming the
             landmark).
     """
+    filter_api.check_key(key)
     _validate_params(config, params)
     n, m, d = config.num_particles, config.num_landmarks, config.obs_model.landmark_dim
     pose = jnp.asarray(initial_pose, jnp.result_type(float))
@@ -670,15 +679,41 @@ def _sample_gaussian(key, mean, cov):
     return x.at[2].set(weights.wrap_angle(x[2]))
 
 
+def _inputs_in_domain(config: FastSLAMConfig, params: FastSLAMParams, control: jax.Array, obs: Any) -> jax.Array:
+    """``bool[]``, traceable: the control and the motion noise in the motion model's domain
+    (:func:`jaxnav.models.motion.controls_in_domain`, :func:`jaxnav.models.motion.noise_in_domain`),
+    and a measurement noise ``R = noise_cov(params.sensor)`` with a positive diagonal (what the
+    landmark EKFs need, whatever the observation model; the parameters are finite,
+    :func:`jaxnav.core.filter.params_in_domain`): the value checks of the host that matter
+    numerically, as ``jnp``. The observations are not part of it: an unusable slot is
+    dropped and counted."""
+    del obs
+    r = config.obs_model.noise_cov(params.sensor)
+    return (
+        controls_in_domain(control, config.motion_model)
+        & noise_in_domain(config.motion_model, params.motion)
+        & jnp.all(jnp.diagonal(r) > 0)
+    )
+
+
 def kernel(
     key: jax.Array, state: FastSLAMState, config: FastSLAMConfig, params: FastSLAMParams, control: jax.Array, obs: Any
 ) -> tuple[FastSLAMState, FastSLAMInfo]:
-    """One FastSLAM step, pure and traceable (:func:`step` is it validated and jitted)."""
+    """One FastSLAM step, pure and traceable (:func:`step` is it validated and jitted).
+
+    A step whose control or parameters are outside the models' domain (refused on the host, so
+    only inside a caller's ``jit``) keeps the state and sets ``info.invalid_inputs``
+    (:func:`jaxnav.core.filter.guard_inputs`): its observations update no landmark and its
+    ancestors are the particles themselves, so the maps are neither written nor copied (a select
+    over the maps would cost a pass over them at every step); the poses and weights are selected."""
+    inputs_ok = filter_api.inputs_in_domain(_inputs_in_domain, config, params, control, obs)
     om = config.obs_model
     model = get_motion_model(config.motion_model)
     k_move, k_resample = jax.random.split(key)
     r = om.noise_cov(params.sensor)
+    obs = at_least_one_slot(obs)
     valid, ids, num_ignored = slot_valid(obs, config.num_landmarks)
+    valid = valid & inputs_ok
 
     if config.version == 1:
         poses = model.sample(k_move, state.poses, control, params.motion)
@@ -719,11 +754,13 @@ def kernel(
     )
     # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
     # one pass over the maps, and the old maps are never copied just to be updated
-    means, covs = _copy_maps(state.means, state.covs, res.ancestors, config)
-    means, covs = write_rows(means, covs, updates, res.ancestors)
-    poses = res.particles
+    ancestors = jnp.where(inputs_ok, res.ancestors, jnp.arange(config.num_particles, dtype=res.ancestors.dtype))
+    means, covs = _copy_maps(state.means, state.covs, ancestors, config)
+    means, covs = write_rows(means, covs, updates, ancestors)
+    poses = jnp.where(inputs_ok, res.particles, state.poses)
+    log_weights = jnp.where(inputs_ok, res.log_weights, state.log_weights)
     info = extend_info(FastSLAMInfo, base, num_ignored=num_ignored, num_new=num_new)
-    return FastSLAMState(poses, res.log_weights, means, covs, seen), info
+    return FastSLAMState(poses, log_weights, means, covs, seen), filter_api.flag_invalid_inputs(info, inputs_ok)
 
 
 def _finite_particles(poses: jax.Array, updates: SlotUpdates, num_landmarks: int) -> jax.Array:
@@ -784,6 +821,7 @@ step, run = filter_api.build(
         check_params=_validate_params,
         check_state=_validate_state,
         check_inputs=_validate_inputs,
+        valid_inputs=_inputs_in_domain,
         donate_step=True,
         unroll=run_unroll,
         step_doc="""One FastSLAM step (version from ``config``) with ``control [control_dim]`` and one step's

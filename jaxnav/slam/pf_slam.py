@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, weights
+from jaxnav.core import memory, resampling, weights
 from jaxnav.models import hf_rfid
 from jaxnav.slam import tag_slam
 from jaxnav.slam.tag_slam import SLAMInfo, check_capacity
@@ -161,10 +161,12 @@ def _validate_params(config: PFSLAMConfig, params: PFSLAMParams) -> None:
     tag_slam.validate_params(config, params, PFSLAMParams)
 
 
+@memory.guard_init
 def init(
     key: jax.Array, config: PFSLAMConfig, params: PFSLAMParams, initial_pose: Any, initial_sd: Any = None
 ) -> PFSLAMState:
     """Robot particles at ``N(initial_pose, diag(initial_sd²))`` (default: all at the known start, [W] Alg. 1) and an empty map."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     poses, log_w = tag_slam.initial_particles(key, config, initial_pose, initial_sd)
     return PFSLAMState(poses, log_w, _empty_table(config, poses.dtype))
@@ -178,8 +180,12 @@ def kernel(
     control: jax.Array,
     detections: hf_rfid.TagDetections,
 ) -> tuple[PFSLAMState, SLAMInfo]:
-    """One PF-SLAM step ([W] Alg. 1), pure and traceable (:func:`step` is it validated and jitted)."""
-    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
+    """One PF-SLAM step ([W] Alg. 1), pure and traceable (:func:`step` is it validated and jitted).
+
+    A step whose odometry or parameters are outside the models' domain (refused on the host, so
+    only inside a caller's ``jit``) keeps the state and sets ``info.invalid_inputs``
+    (:func:`jaxnav.slam.tag_slam.slam_step`)."""
+    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL, tag_slam.inputs_in_domain)
 
 
 step, run = filter_api.build(

@@ -37,15 +37,15 @@ Interface: as PF-SLAM, with ``PSSLAMConfig.lag`` and ``PSSLAMParams.tag_jitter_s
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, ring, rng, weights
-from jaxnav.core.validation import check_nonnegative, check_positive_int, check_shape
+from jaxnav.core import memory, resampling, ring, rng, weights
+from jaxnav.core.validation import all_nonnegative, check_nonnegative, check_positive_int, check_shape
 from jaxnav.models import hf_rfid
 from jaxnav.slam import tag_slam
 from jaxnav.slam.tag_slam import SLAMInfo, check_capacity
@@ -74,6 +74,8 @@ class PSSLAMConfig(tag_slam.TagSLAMConfig):
         lag: ``L``, states kept per tag particle (20–30 in [W] §4.1); ``L = 1`` smooths nothing.
     """
 
+    # the fields that size the state, named when it is too large (jaxnav.core.memory)
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles", "num_tag_particles", "max_tags", "lag")
     lag: int = 20
 
     def __post_init__(self) -> None:
@@ -189,13 +191,22 @@ def _validate_params(config: PSSLAMConfig, params: PSSLAMParams) -> None:
     check_nonnegative("params.tag_jitter_sd", params.tag_jitter_sd)
 
 
+@memory.guard_init
 def init(
     key: jax.Array, config: PSSLAMConfig, params: PSSLAMParams, initial_pose: Any, initial_sd: Any = None
 ) -> PSSLAMState:
     """Robot particles at ``N(initial_pose, diag(initial_sd²))`` (default: the known start) and an empty map."""
+    filter_api.check_key(key)
     _validate_params(config, params)
     poses, log_w = tag_slam.initial_particles(key, config, initial_pose, initial_sd)
     return PSSLAMState(poses, log_w, _empty_table(config, poses.dtype))
+
+
+def _inputs_in_domain(
+    config: PSSLAMConfig, params: PSSLAMParams, control: jax.Array, detections: hf_rfid.TagDetections
+) -> jax.Array:
+    """``bool[]``: :func:`jaxnav.slam.tag_slam.inputs_in_domain` and a tag jitter ``≥ 0`` m."""
+    return tag_slam.inputs_in_domain(config, params, control, detections) & all_nonnegative(params.tag_jitter_sd)
 
 
 def kernel(
@@ -206,8 +217,12 @@ def kernel(
     control: jax.Array,
     detections: hf_rfid.TagDetections,
 ) -> tuple[PSSLAMState, SLAMInfo]:
-    """One PS-SLAM step ([W] Alg. 2), pure and traceable (:func:`step` is it validated and jitted)."""
-    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL)
+    """One PS-SLAM step ([W] Alg. 2), pure and traceable (:func:`step` is it validated and jitted).
+
+    A step whose odometry or parameters are outside the models' domain (refused on the host, so
+    only inside a caller's ``jit``) keeps the state and sets ``info.invalid_inputs``
+    (:func:`jaxnav.slam.tag_slam.slam_step`)."""
+    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL, _inputs_in_domain)
 
 
 step, run = filter_api.build(
@@ -224,6 +239,7 @@ step, run = filter_api.build(
         ``donate_state=True`` matters for large tables: without it the initial table and its rings are
         copied into the scan at every call.""",
         state_type=PSSLAMState,
+        valid_inputs=_inputs_in_domain,
     ),
     __name__,
 )

@@ -52,8 +52,13 @@ Choices where [W] is silent (stated here, tested):
 * In place: every field written back must be computed *from* its gathered
   row. A row field that does not depend on its gather (say, a constant) lets
   XLA schedule the scatter before the read and copy the whole table to keep
-  the read valid, an ``O(max_tags)`` copy per step. Tag models therefore
-  return the gathered log-weights when they are known to be uniform (tag
+  the read valid, an ``O(max_tags)`` copy per step. The step therefore writes
+  ``where(write, updated, gathered)`` for every field (the slots that do not
+  write are dropped by the scatter anyway). PF-SLAM's estimate, the mean of the
+  new particles, is tied to its gathered row by nothing else once
+  ``recovery=False`` removes the kidnapping check (which reads the gathered
+  estimates), and XLA would copy the estimate table twice per step. Tag models
+  also return the gathered log-weights when they are known to be uniform (tag
   resampling at every detection) instead of a fresh constant.
 * ``counts`` counts the steps in which a tag was detected (one per step,
   however many readers saw it): the "detection times" of [W] Fig. 3.5, and
@@ -73,7 +78,7 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import resampling, rng, weights
-from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
+from jaxnav.core.particle_filter import PFInfo, at_least_one_slot, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
     check_finite,
@@ -83,7 +88,7 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.models import hf_rfid
-from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
+from jaxnav.models.motion import MODELS, controls_in_domain, get_motion_model, noise_in_domain, validate_controls
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 _POSE_ANGLE_DIMS = (2,)
@@ -108,6 +113,11 @@ class SLAMInfo(PFInfo):
         slot_ids: ``[K]`` tag ID per slot, −1 for empty or dropped slots.
         slot_estimates: ``[K, 2]`` the slot's tag estimate after the step (m).
         slot_counts: ``[K]`` the slot's tag detection count after the step.
+        invalid_inputs: bool, the step's odometry or parameters were outside the models' domain (a
+            negative Δt or noise level, a value that is not finite or exceeds
+            :data:`~jaxnav.core.validation.MAX_MAGNITUDE`), refused on the host, so only inside a
+            caller's ``jit``: the state was carried over unchanged (the step's detections were
+            masked out, so that no row of the tag table is written).
     """
 
     lost: jax.Array
@@ -117,6 +127,7 @@ class SLAMInfo(PFInfo):
     slot_ids: jax.Array
     slot_estimates: jax.Array
     slot_counts: jax.Array
+    invalid_inputs: jax.Array = False
 
 
 # ---------------------------------------------------------------------------
@@ -136,6 +147,7 @@ class TagSLAMConfig:
         ess_threshold: robot resampling when ESS < ``ess_threshold · I``; 1.0 = every step ([W] Alg. 1).
         tag_ess_threshold: the same for a tag's particles at each detection; 1.0 = always ([W] Alg. 1).
         recovery: redraw the robot particles when it is lost (kidnapping, [W] §3.4.3; module docstring).
+            Either setting updates the tag table in place: a step's cost does not depend on ``max_tags``.
         recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
         recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
             been turned); a number: each keeps its own heading with a uniform error of this standard deviation (rad).
@@ -225,8 +237,23 @@ def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, ti
         )
 
 
+def inputs_in_domain(config: Any, params: Any, control: jax.Array, detections: hf_rfid.TagDetections) -> jax.Array:
+    """``bool[]``, traceable: the odometry and the motion noise in the motion model's domain
+    (:func:`jaxnav.models.motion.controls_in_domain`, :func:`jaxnav.models.motion.noise_in_domain`)
+    and the reader model in its own (:func:`jaxnav.models.hf_rfid.reader_params_in_domain`): the value
+    checks of the host, as ``jnp``. The detections are not part of it (slots outside the table are
+    dropped and counted)."""
+    del detections
+    return (
+        controls_in_domain(control, config.motion_model)
+        & noise_in_domain(config.motion_model, params.motion)
+        & hf_rfid.reader_params_in_domain(params.sensor)
+    )
+
+
 def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd: Any) -> tuple[jax.Array, jax.Array]:
     """Robot particles at ``N(initial_pose, diag(initial_sd²))`` ([W] Alg. 1 line 1: a known start) and uniform log-weights."""
+    filter_api.check_key(key)
     pose = jnp.asarray(initial_pose, jnp.result_type(float))
     check_shape("initial_pose", pose, (3,))
     check_finite("initial_pose", pose)
@@ -325,12 +352,22 @@ def slam_step(
     control: jax.Array,
     det: hf_rfid.TagDetections,
     tag_model: TagModel,
+    valid_inputs: Callable[..., jax.Array] = inputs_in_domain,
 ) -> tuple[Any, SLAMInfo]:
     """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
 
     With ``config.parallel_slots = L`` smaller than the ``K`` detection slots, the valid slots
     are moved to the front and only the first ``L`` are processed (``_compacted_result``).
+
+    A step whose inputs are outside the domain (``valid_inputs``, with
+    :func:`jaxnav.core.filter.params_in_domain`) keeps the state and sets ``info.invalid_inputs``
+    (:func:`jaxnav.core.filter.guard_inputs`): its detections are masked out, so no row of the
+    table is written (a select over the whole table would cost a pass over it at every step),
+    and only the robot's particles are selected.
     """
+    ok = filter_api.inputs_in_domain(valid_inputs, config, params, control, det)
+    det = at_least_one_slot(det)
+    det = hf_rfid.TagDetections(det.ids, det.readers, det.mask.astype(bool) & ok)
     num_slots = det.ids.shape[0]
     lanes = config.parallel_slots
     robot = (state.poses, state.log_weights)
@@ -340,9 +377,17 @@ def slam_step(
         res = _slot_result(key, robot, rows, config, params, control, det, tag_model)
     else:
         res = _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes)
-    # the table is only written here, once: in place in a scan carry or a donated step
-    tags = jax.tree_util.tree_map(lambda a, v: a.at[res.write_ids].set(v, mode="drop"), state.tags, res.rows)
-    return state._replace(poses=res.poses, log_weights=res.log_weights, tags=tags), res.info
+    # the table is only written here, once: in place in a scan carry or a donated step. Every field
+    # written is a select with its gathered row (module docstring, "In place"); the slots that
+    # keep their row are dropped by the scatter, so the select changes no value written.
+    writes = res.write_ids < config.max_tags
+    new_rows = jax.tree_util.tree_map(
+        lambda v, old: jnp.where(writes.reshape(writes.shape + (1,) * (v.ndim - 1)), v, old), res.rows, rows
+    )
+    tags = jax.tree_util.tree_map(lambda a, v: a.at[res.write_ids].set(v, mode="drop"), state.tags, new_rows)
+    poses = jnp.where(ok, res.poses, state.poses)
+    log_weights = jnp.where(ok, res.log_weights, state.log_weights)
+    return state._replace(poses=poses, log_weights=log_weights, tags=tags), filter_api.flag_invalid_inputs(res.info, ok)
 
 
 def _compact(det: hf_rfid.TagDetections, max_tags: int, lanes: int):
@@ -511,6 +556,7 @@ def filter_spec(
     step_doc: str,
     run_doc: str,
     state_type: type | None = None,
+    valid_inputs: Callable[..., jax.Array] = inputs_in_domain,
 ) -> filter_api.FilterSpec:
     """The :class:`~jaxnav.core.filter.FilterSpec` of a tag-SLAM filter: odometry and
     :class:`~jaxnav.models.hf_rfid.TagDetections` in, the state donated to ``step`` (the tag table
@@ -525,6 +571,7 @@ def filter_spec(
         check_params=check_params,
         check_state=lambda config, params, state: validate_state(config, state, table_shapes(config)),
         check_inputs=validate_inputs,
+        valid_inputs=valid_inputs,
         donate_step=True,
         step_doc=step_doc,
         run_doc=run_doc,

@@ -94,7 +94,8 @@ def test_params_are_checked_once_per_value_not_per_object():
     assert len(calls) == 1
     step(key, STATE, CONFIG, WalkParams(jnp.asarray(0.2)), 0.0, 1.0)  # new values: checked
     assert len(calls) == 2
-    step(key, STATE, CONFIG, WalkParams(jnp.asarray(0.2, jnp.float16)), 0.0, 1.0)  # new dtype: checked
+    with pytest.raises(ValueError, match="params.sd has dtype float16"):  # new dtype: checked (and refused)
+        step(key, STATE, CONFIG, WalkParams(jnp.asarray(0.2, jnp.float16)), 0.0, 1.0)
     assert len(calls) == 3
     with pytest.raises(ValueError, match="params.sd"):
         step(key, STATE, CONFIG, WalkParams(jnp.asarray(-1.0)), 0.0, 1.0)

@@ -153,6 +153,53 @@ def test_degenerate_weights_resample_uniformly(name, fill, getkey):
     np.testing.assert_array_equal(idx, _batch(name, keys, jnp.zeros(N))[1])
 
 
+_resample_weights = jax.jit(R.resample_weights, static_argnames=("num_samples", "scheme"))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_subnormal_weights_keep_their_sizes_and_zeros(name):
+    """Weights that are all below float32's smallest normal number ``2⁻¹²⁶`` (which XLA:CPU flushes to
+    zero in arithmetic) are resampled by their exact values: ``[2⁻¹⁴⁹, 2⁻¹⁴⁹, 0]`` never draws the zero and
+    gives ``M/2`` copies each (systematic, stratified, residual: exactly); ``[3, 1, 0, 0]·2⁻¹⁴⁹`` gives
+    three quarters and a quarter; float64 subnormals likewise. The log-weight path never sees a
+    subnormal maximum (``exp(ℓ − max ℓ)``): very negative log-weights are resampled as their
+    differences say, and ``-inf`` entries are never drawn."""
+    m = 1000
+    tiny = float(np.float32(2.0**-149))
+    half = _resample_weights(
+        jax.random.PRNGKey(0), jnp.asarray([tiny, tiny, 0.0], jnp.float32), num_samples=m, scheme=name
+    )
+    counts = np.bincount(np.asarray(half), minlength=3)
+    assert counts[2] == 0, counts
+    quarter = _resample_weights(
+        jax.random.PRNGKey(1), jnp.asarray([3 * tiny, tiny, 0.0, 0.0], jnp.float32), num_samples=m, scheme=name
+    )
+    counts4 = np.bincount(np.asarray(quarter), minlength=4)
+    assert counts4[2] == counts4[3] == 0, counts4
+    if name == "multinomial":  # binomial: 5 standard deviations
+        assert abs(counts[0] - m / 2) < 5 * math.sqrt(m / 4), counts
+        assert abs(counts4[1] - m / 4) < 5 * math.sqrt(m * 3 / 16), counts4
+    else:
+        np.testing.assert_array_equal(counts, [m // 2, m // 2, 0])
+        np.testing.assert_array_equal(counts4, [3 * m // 4, m // 4, 0, 0])
+    with jax.enable_x64(True):
+        w64 = jnp.asarray([5e-324, 0.0, 1e-323], jnp.float64)  # 2⁻¹⁰⁷⁴, 0, 2·2⁻¹⁰⁷⁴
+        idx = np.asarray(jax.jit(R.resample_weights, static_argnums=(2, 3))(jax.random.PRNGKey(2), w64, 999, name))
+        counts64 = np.bincount(idx, minlength=3)
+        assert counts64[1] == 0, counts64
+        if name != "multinomial":
+            np.testing.assert_array_equal(counts64, [333, 0, 666])
+    resample = jax.jit(R.SCHEMES[name], static_argnums=2)
+    for lw, expected in [
+        ([-1e4, -1e4, -1e4 - np.log(2.0), -np.inf], [0.4, 0.4, 0.2, 0.0]),
+        ([-np.inf, -1e4, -np.inf, -np.inf], [0.0, 1.0, 0.0, 0.0]),
+    ]:
+        idx = resample(jax.random.PRNGKey(3), jnp.asarray(lw, jnp.float32), m)
+        frac = np.bincount(np.asarray(idx), minlength=4) / m
+        assert frac[3] == 0 and np.all(frac[np.asarray(expected) == 0] == 0), frac
+        np.testing.assert_allclose(frac, expected, atol=0.002 if name != "multinomial" else 5 * math.sqrt(0.25 / m))
+
+
 # --------------------------------------------------------------------------- (b) offspring bounds
 
 

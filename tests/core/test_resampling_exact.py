@@ -140,6 +140,15 @@ def _weights(kind: str, n: int, seed: int) -> np.ndarray:
         w[rng.random(n) < 0.5] = np.float32(np.finfo(np.float32).tiny) * 3.0
     elif kind == "unnormalised_large":
         w = rng.random(n) * 3e36
+    elif kind == "all_subnormal":  # every weight below 2⁻¹²⁶ (m·2⁻¹⁴⁹, m < 2²³), a fifth of them zero
+        m = rng.integers(1, 2**23, n, dtype=np.uint32) >> rng.integers(0, 23, n, dtype=np.uint32)
+        m[rng.random(n) < 0.2] = 0
+        return m.view(np.float32)
+    elif kind == "subnormal_beside_normal":  # a few weights just above 2⁻¹²⁶, the others subnormal or zero
+        m = rng.integers(0, 2**23, n, dtype=np.uint32)
+        m[rng.random(n) < 0.2] = 0
+        m[rng.random(n) < 0.01] |= np.uint32(1 << 23)  # exponent field 1: normal, in [2⁻¹²⁶, 2⁻¹²⁵)
+        return m.view(np.float32)
     else:
         raise ValueError(kind)
     return np.asarray(w, np.float32)
@@ -155,6 +164,19 @@ def test_small_sets_equal_the_exact_reference_for_every_kind(scheme, n, m):
         key = jax.random.PRNGKey(1000 * n + 10 * m + i)
         got = assert_exact(scheme, key, _weights(kind, n, seed=n + i), m)
         assert np.all(np.diff(got) >= 0)
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.parametrize("kind", ("all_subnormal", "subnormal_beside_normal"))
+def test_subnormal_weights_equal_the_exact_reference(scheme, kind):
+    """Weights below float32's smallest normal number, which XLA:CPU flushes to zero in arithmetic and
+    comparisons: the integer weights are read from their bits, so the ancestors are those of the exact
+    values (not of a uniform set, nor of the normal weights alone) and no zero weight is drawn."""
+    for n, m in [(17, 40), (3000, 2999)]:
+        w = _weights(kind, n, seed=n)
+        assert np.all(w < np.finfo(np.float32).tiny * 2) and np.any((w > 0) & (w < np.finfo(np.float32).tiny))
+        got = assert_exact(scheme, jax.random.PRNGKey(n + len(kind)), w, m)
+        assert np.all(w[got] > 0)
 
 
 @functools.cache

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -48,6 +50,31 @@ def test_float64_draws_and_64_bit_words_are_jax_randoms():
             )
             _same(rng.normal(key, (333, 2), jnp.float64), jax.random.normal(key, (333, 2), jnp.float64))
             _same(rng.normal(key, (5,)), jax.random.normal(key, (5,)))  # default dtype: float64 here
+
+
+def test_default_dtypes_are_jax_randoms_with_and_without_x64():
+    """``dtype=None`` is what jax.random picks: 64-bit words and float64 draws under ``jax_enable_x64``,
+    32-bit ones without; the numbers are jax.random's, eagerly and under ``jit``."""
+    for x64, word, real in [(True, jnp.uint64, jnp.float64), (False, jnp.uint32, jnp.float32)]:
+        with jax.enable_x64(x64):
+            for key in KEYS:
+                assert rng.bits(key, (333,)).dtype == word
+                assert rng.uniform(key, (333,)).dtype == rng.normal(key, (333,)).dtype == real
+                _same(rng.bits(key, (333,)), jax.random.bits(key, (333,)))
+                _same(jax.jit(lambda k: rng.bits(k, (7, 3)))(key), jax.random.bits(key, (7, 3)))
+                _same(rng.uniform(key, (333,)), jax.random.uniform(key, (333,)))
+                _same(rng.normal(key, (333,)), jax.random.normal(key, (333,)))
+
+
+def test_64_bit_dtypes_without_x64_give_jax_randoms_32_bit_numbers():
+    """Without ``jax_enable_x64`` jax.random narrows a requested ``uint64``/``float64`` to 32 bits (with a
+    warning): the same 32-bit numbers here."""
+    with jax.enable_x64(False), warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        for key in KEYS:
+            _same(rng.bits(key, (333,), jnp.uint64), jax.random.bits(key, (333,), jnp.uint64))
+            _same(rng.uniform(key, (333,), jnp.float64), jax.random.uniform(key, (333,), jnp.float64))
+            _same(rng.normal(key, (333,), jnp.float64), jax.random.normal(key, (333,), jnp.float64))
 
 
 def test_array_bounds_broadcast_like_jax_random():

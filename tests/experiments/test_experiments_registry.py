@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
 
@@ -53,7 +54,7 @@ def test_compiler_options_default_to_the_experiments_own(quick, given, expected,
         return _fake_errors(registry.get("table-3.1").cells(quick), runs, np.random.default_rng(0))
 
     monkeypatch.setattr(sw, "sweep", fake_sweep)
-    registry.run("table-3.1", 3, None, quick=quick, compiler_options=given)
+    registry.run("table-3.1", 3, jax.random.PRNGKey(0), quick=quick, compiler_options=given)
     want = given if expected == "given" else getattr(sw, expected)
     assert seen["compiler_options"] == want
     assert registry.get("fig-4.4").compiler_options == sw.LIGHT_COMPILE

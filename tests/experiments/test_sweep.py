@@ -127,6 +127,7 @@ def test_fresh_discards_a_checkpoint_instead_of_resuming_it(tmp_path):
     first = sw.sweep(_cells(), 3, key, path, progress=False)
     data = json.load(open(path))
     data["cells"]["noisy"]["a"] = [99.0, 99.0, 99.0]  # what a stale checkpoint from older code would hold
+    data["sha256"] = sw._checksum(data)  # written by that code: its checksum matches
     json.dump(data, open(path, "w"))
     assert np.all(sw.sweep(_cells(), 3, key, path, progress=False)["noisy"]["a"] == 99.0)  # resumed as is
     again = sw.sweep(_cells(), 3, key, path, progress=False, fresh=True)

@@ -161,12 +161,14 @@ def test_a_bad_checkpoint_is_refused_naming_the_file_and_fresh(good, tmp_path, c
 
 
 def test_a_checkpoint_without_its_chunk_size_is_only_read(good, tmp_path):
-    """A checkpoint that does not record its chunk size is read when complete, refused when runs are missing."""
+    """A checkpoint that does not record its chunk size (nor a checksum: written by an older jaxnav) is read
+    when complete, refused when runs are missing."""
     data = json.loads(good)
-    del data["chunk_size"]
+    del data["chunk_size"], data["sha256"]
     path = tmp_path / "runs.json"
     path.write_text(json.dumps(data))
-    out = sw.sweep(CELLS, RUNS, KEY, str(path), chunk_size=CHUNK, progress=False)
+    with pytest.warns(sw.UnverifiedCheckpointWarning):
+        out = sw.sweep(CELLS, RUNS, KEY, str(path), chunk_size=CHUNK, progress=False)
     assert out["second"]["value"].tolist() == data["cells"]["second"]["value"]
     with pytest.raises(ValueError) as err:
         sw.sweep(CELLS, RUNS + 2, KEY, str(path), chunk_size=CHUNK, progress=False)
@@ -199,6 +201,7 @@ def test_null_marks_a_run_that_has_no_finite_value(good, tmp_path):
     data = json.loads(good)
     data["cells"]["first"]["value"][1] = None
     data["cells"]["first"]["curve"][2][0] = None
+    data["sha256"] = sw._checksum(data)  # as if the runs had returned NaN
     path = tmp_path / "runs.json"
     path.write_text(json.dumps(data))
     out = sw.sweep(CELLS, RUNS, KEY, str(path), chunk_size=CHUNK, progress=False)

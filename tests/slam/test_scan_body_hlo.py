@@ -19,7 +19,8 @@ Toy scans show that the analysis can fail: a body that rewrites the whole table
 write that does not depend on its read (XLA copies the table to keep the read valid); one
 that writes a row with a ``dynamic_update_slice`` or a scatter is not. On the real programs,
 the copy of the initial table that ``run`` makes without donation is found outside the
-loop, and none with donation.
+loop, and none with donation. Both filters are checked with kidnapping recovery on and off,
+and so is the public ``step`` (state donated): no table copy, nothing over the whole table.
 
 What the compiled body of both filters holds (XLA:CPU): per table field one fused
 ``gather`` of the ``K`` detected rows (``op_name=".../while/body/closed_call/gather"``)
@@ -215,8 +216,13 @@ def _reachable(computations: dict[str, list[Instruction]], roots) -> list[str]:
 def whole_table_work(computations: dict[str, list[Instruction]], loop: Instruction, rows: int) -> list[Instruction]:
     """Every instruction in the body (and condition) of ``loop``, and in what they call, that touches
     an array with a table-sized dimension other than by plumbing, in-place row writes or row reads."""
+    return table_work(computations, loop.called, rows)
+
+
+def table_work(computations: dict[str, list[Instruction]], roots, rows: int) -> list[Instruction]:
+    """:func:`whole_table_work` in the computations ``roots`` and in everything they call."""
     found = []
-    for comp in _reachable(computations, loop.called):
+    for comp in _reachable(computations, roots):
         shapes = {ins.name: ins.shapes for ins in computations[comp]}
         for ins in computations[comp]:
             operand_shapes = [shapes.get(o, ()) for o in ins.operands]
@@ -380,11 +386,11 @@ def test_analysis_flags_a_table_copy_in_the_loop():
 # PF-SLAM and PS-SLAM
 
 
-def _slam(method: str):
+def _slam(method: str, recovery: bool = True):
     if method == "pf":
-        config = pf_slam.PFSLAMConfig(num_particles=64, num_tag_particles=16, max_tags=NUM_TAGS)
+        config = pf_slam.PFSLAMConfig(num_particles=64, num_tag_particles=16, max_tags=NUM_TAGS, recovery=recovery)
         return pf_slam, config, pf_slam.PFSLAMParams(MOTION, SENSOR)
-    config = ps_slam.PSSLAMConfig(num_particles=64, num_tag_particles=16, max_tags=NUM_TAGS, lag=5)
+    config = ps_slam.PSSLAMConfig(num_particles=64, num_tag_particles=16, max_tags=NUM_TAGS, lag=5, recovery=recovery)
     return ps_slam, config, ps_slam.PSSLAMParams(MOTION, SENSOR, ps_slam.default_jitter(SENSOR))
 
 
@@ -400,18 +406,19 @@ def _slam_inputs():
 
 
 @functools.cache
-def _slam_analysis(method: str, donated: bool = True) -> tuple[Any, Analysis]:
+def _slam_analysis(method: str, donated: bool = True, recovery: bool = True) -> tuple[Any, Analysis]:
     """The state's shapes and the analysis of ``run`` (``donate_state=donated``) as the S2 benchmark compiles it."""
-    module, config, params = _slam(method)
+    module, config, params = _slam(method, recovery)
     state = jax.eval_shape(lambda: module.init(jax.random.key(0), config, params, jnp.zeros(3)))
     controls, det = _slam_inputs()
     jitted = module.run.jitted_donated if donated else module.run.jitted
     return state, analyse(jitted, jax.random.key(1), state, config, params, controls, det, rows=NUM_TAGS)
 
 
+@pytest.mark.parametrize("recovery", [True, False])
 @pytest.mark.parametrize("method", ["pf", "ps"])
-def test_scan_body_touches_only_the_detected_rows(method):
-    _, found = _slam_analysis(method)
+def test_scan_body_touches_only_the_detected_rows(method, recovery):
+    _, found = _slam_analysis(method, recovery=recovery)
     assert unresolved_operands(found.computations) == []
     assert sum(len(v) for v in found.computations.values()) == len(
         re.findall(r"(?m)^\s+(?:ROOT )?%?\S+ = ", found.text)
@@ -420,9 +427,10 @@ def test_scan_body_touches_only_the_detected_rows(method):
     assert found.work == [], "whole-table work in the scan body:\n" + describe(found.work)
 
 
+@pytest.mark.parametrize("recovery", [True, False])
 @pytest.mark.parametrize("method", ["pf", "ps"])
-def test_donated_scan_carries_the_table_without_copying_it(method):
-    state, found = _slam_analysis(method)
+def test_donated_scan_carries_the_table_without_copying_it(method, recovery):
+    state, found = _slam_analysis(method, recovery=recovery)
     assert len(found.loops) == 1
     assert found.copies == [], "table copies outside or inside the scan:\n" + describe(found.copies)
     header = found.text.splitlines()[0]
@@ -438,3 +446,29 @@ def test_undonated_scan_copies_the_table_once_outside_the_loop(method):
     assert len(found.copies) == len(state.tags), describe(found.copies)
     assert found.body_copies == []
     assert found.work == [], describe(found.work)
+
+
+@pytest.mark.parametrize("recovery", [True, False])
+@pytest.mark.parametrize("method", ["pf", "ps"])
+def test_donated_step_writes_the_table_in_place(method, recovery):
+    """The public ``step`` (state donated): no copy of a table field and nothing over its rows but the
+    gather of the detected rows and the scatter of their updates, with kidnapping recovery on or off.
+    Without recovery no written row used to depend on its gathered estimate (the robot is not checked
+    against the previous estimates), so XLA copied the estimate table twice per step to keep the gather
+    valid; every field written is now selected with its gathered row."""
+    module, config, params = _slam(method, recovery)
+    state = jax.eval_shape(lambda: module.init(jax.random.key(0), config, params, jnp.zeros(3)))
+    controls, det = _slam_inputs()
+    args = (jax.random.key(1), state, config, params, controls[0], jax.tree_util.tree_map(lambda a: a[0], det))
+    text = module.step.jitted.lower(*args).compile().as_text()
+    computations, entry = parse_hlo(text)
+    assert unresolved_operands(computations) == []
+    every = [i for c in _reachable(computations, [entry]) for i in computations[c]]
+    copies = [i for i in every if i.opcode in ("copy", "copy-start") and _any_table_sized(i.shapes, NUM_TAGS)]
+    assert copies == [], "table copies in the step:\n" + describe(copies)
+    work = table_work(computations, [entry], NUM_TAGS)
+    assert work == [], "whole-table work in the step:\n" + describe(work)
+    # the analysis saw the write (a scatter, or a loop of row writes where XLA expands the scatter)
+    assert any(i.opcode in ("scatter", "dynamic-update-slice") and _any_table_sized(i.shapes, NUM_TAGS) for i in every)
+    header = text.splitlines()[0]
+    assert header.count("may-alias") + header.count("must-alias") >= 2 + len(state.tags)

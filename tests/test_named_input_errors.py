@@ -1,5 +1,5 @@
-"""Inputs that used to fail with an error naming nothing, or to be silently changed, now either work
-or are refused with a ``ValueError`` that names the argument:
+"""Inputs that JAX would reject with an error naming nothing, or that a cast would silently change,
+either work or are refused with a ``ValueError`` that names the argument:
 
 * a negative step count for the control generators of :mod:`jaxnav.sim.trajectories` (zero is an
   empty series);
@@ -44,8 +44,8 @@ def test_zero_steps_give_an_empty_series_of_the_right_shape():
 
 
 def test_the_landmark_simulator_promotes_mixed_precision_to_one_dtype():
-    """float32 controls (what loop_controls makes) with float64 landmarks and noise under x64: the
-    scan's carry used to change type; now every array is float64 and the run is the one with the
+    """float32 controls (what loop_controls makes) with float64 landmarks and noise under x64 would
+    change the type of the scan's carry: every array is float64, and the run is the one with the
     controls cast to float64 first."""
     s = setups()["mcl"]
     with jax.enable_x64(True):

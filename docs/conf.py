@@ -16,6 +16,7 @@ ROOT = os.path.dirname(HERE)
 sys.path[:0] = [ROOT, HERE]  # the package and the benchmark harness from this checkout; generate.py
 
 import importlib  # noqa: E402
+import re  # noqa: E402
 import typing  # noqa: E402
 
 import generate  # noqa: E402
@@ -61,6 +62,7 @@ nitpick_ignore_regex = [
     (r"py:.*", r"(int|float|bool|str|bytes|dict|list|tuple|object|None|type|complex|Ellipsis)"),
     (r"py:.*", r"(ValueError|TypeError|KeyError|FileNotFoundError|RuntimeError|OSError|ImportError)"),
     (r"py:.*", r"(os|pathlib)(\..*)?"),
+    (r"py:.*", r"jaxnav(\.\w+)*\._\w+"),  # private names (type variables such as memory._F) are not documented
 ]
 
 # reproductions/ and benchmarks/ hold the texts generate.py puts into the generated pages.
@@ -115,12 +117,31 @@ def _resolve_namedtuple_annotations(app) -> None:
 
 
 def _skip_namedtuple_fields(app, what, name, obj, skip, options):
-    """NamedTuple fields are documented by their class's ``Attributes:`` section, not again as members."""
+    """NamedTuple fields are documented by their class's ``Attributes:`` section, not again as members; so
+    are dataclass fields whose default is a function of another name (``FilterSpec.prepare``), which
+    autodoc would otherwise take for a method."""
     doc = getattr(obj, "__doc__", None) or ""
-    return True if what == "class" and doc.startswith("Alias for field number") else None
+    if what == "class" and doc.startswith("Alias for field number"):
+        return True
+    if what == "class" and callable(obj) and getattr(obj, "__name__", name) != name:
+        return True
+    return None
+
+
+_SENSOR_DEFAULT = re.compile(r"\('(\w+)'(?:, <function \w+>)+\)")
+
+
+def _short_sensor_defaults(app, what, name, obj, options, signature, return_annotation):
+    """A default that is a sensor object (a NamedTuple of functions, e.g. ``MCLConfig.sensor``) is shown as
+    its repr, ``ParticleSensor('range_bearing')``, not as the tuple of its functions, which the signature
+    parser cannot read."""
+    if signature:
+        signature = _SENSOR_DEFAULT.sub(r"ParticleSensor('\1')", signature)
+    return signature, return_annotation
 
 
 def setup(app):
+    app.connect("autodoc-process-signature", _short_sensor_defaults)
     app.connect("builder-inited", lambda app: generate.main(HERE, ROOT))
     app.connect("autodoc-skip-member", _skip_namedtuple_fields)
     app.connect("builder-inited", _resolve_namedtuple_annotations)

@@ -536,26 +536,8 @@ def _command(sub, name: str, help: str, description: str, examples: str) -> argp
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="jaxnav",
-        description="Vectorised JAX particle filters for indoor robot localization and SLAM: the systems of "
-        "two theses,\ncited as [A] and [W] in the help of every command, and the classical filters they "
-        f"build on.\n\n{_THESES}",
-        epilog=_examples(
-            ("Monte Carlo localization in a simulated room; writes jaxnav-demo.png", "jaxnav demo"),
-            ("HF-RFID PF-SLAM of [W] on a simulated tag carpet, one lap, no PNG", "jaxnav hf-slam --laps 1 --out ''"),
-            ("the tables and figures of [A] and [W] that can be reproduced", "jaxnav experiments list"),
-            (
-                "[W] Table 3.1 in its seconds-long variant, 2 runs per setting, results in xp/",
-                "jaxnav experiments run table-3.1 --quick --runs 2 --out xp",
-            ),
-        )
-        + f"\n\n'jaxnav COMMAND --help' tells what a command does, its options and examples.\n{_DOCS}",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+def _add_demo_command(sub) -> None:
+    """``jaxnav demo``: Monte Carlo localization in a simulated room."""
     demo = _command(
         sub,
         "demo",
@@ -579,6 +561,10 @@ pip install 'jaxnav[plot]').""",
     demo.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
     demo.add_argument("--out", default="jaxnav-demo.png", help="PNG to write ('' for none; default jaxnav-demo.png)")
     demo.set_defaults(func=_cmd_demo)
+
+
+def _add_mrclam_command(sub) -> None:
+    """``jaxnav mrclam``: the filters of [A] ch. 2 on the MRCLAM dataset."""
     mr = _command(
         sub,
         "mrclam",
@@ -618,6 +604,10 @@ landmark RMSE of the SLAM filters and the time taken, and draws a PNG per robot 
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
     mr.set_defaults(func=_cmd_mrclam)
+
+
+def _add_hf_slam_command(sub) -> None:
+    """``jaxnav hf-slam``: HF-RFID SLAM on a simulated tag carpet."""
     hf = _command(
         sub,
         "hf-slam",
@@ -674,6 +664,10 @@ as [W]'s tables do, and draws the run into a PNG (needs matplotlib). 'jaxnav exp
         "--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)"
     )
     hf.set_defaults(func=_cmd_hf_slam)
+
+
+def _add_ir_command(sub) -> None:
+    """``jaxnav ir``: IR ceiling-emitter positioning, one simulated drive."""
     irp = _command(
         sub,
         "ir",
@@ -726,6 +720,10 @@ runs.""",
     irp.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
     irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
     irp.set_defaults(func=_cmd_ir)
+
+
+def _add_uhf_real_command(sub) -> None:
+    """``jaxnav uhf-real``: UHF-RFID tag localization on the AdaRF reads."""
     ur = _command(
         sub,
         "uhf-real",
@@ -774,6 +772,10 @@ the ground truth beside that of a uniform guess, and draws the estimates into a 
     ur.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     ur.add_argument("--out", default="jaxnav-uhf-real", help="PNG prefix ('' for none; default jaxnav-uhf-real)")
     ur.set_defaults(func=_cmd_uhf_real)
+
+
+def _add_experiments_command(sub) -> None:
+    """``jaxnav experiments``: list and run the reproductions of [A] and [W]."""
     xp = _command(
         sub,
         "experiments",
@@ -823,6 +825,34 @@ actions:
     xp.add_argument("--quick", action="store_true", help="the seconds-long variant (short runs, few particles)")
     xp.add_argument("--no-progress", action="store_true", help="no progress display")
     xp.set_defaults(func=_cmd_experiments, help_text=xp.format_help)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="jaxnav",
+        description="Vectorised JAX particle filters for indoor robot localization and SLAM: the systems of "
+        "two theses,\ncited as [A] and [W] in the help of every command, and the classical filters they "
+        f"build on.\n\n{_THESES}",
+        epilog=_examples(
+            ("Monte Carlo localization in a simulated room; writes jaxnav-demo.png", "jaxnav demo"),
+            ("HF-RFID PF-SLAM of [W] on a simulated tag carpet, one lap, no PNG", "jaxnav hf-slam --laps 1 --out ''"),
+            ("the tables and figures of [A] and [W] that can be reproduced", "jaxnav experiments list"),
+            (
+                "[W] Table 3.1 in its seconds-long variant, 2 runs per setting, results in xp/",
+                "jaxnav experiments run table-3.1 --quick --runs 2 --out xp",
+            ),
+        )
+        + f"\n\n'jaxnav COMMAND --help' tells what a command does, its options and examples.\n{_DOCS}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _add_demo_command(sub)
+    _add_mrclam_command(sub)
+    _add_hf_slam_command(sub)
+    _add_ir_command(sub)
+    _add_uhf_real_command(sub)
+    _add_experiments_command(sub)
     return parser
 
 

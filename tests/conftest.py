@@ -24,7 +24,7 @@ may differ in the last bits of a float, as between two XLA versions).
 Two more keep a worker small and the slow parts short: JAX's in-memory programs
 are dropped after each test file (a worker that kept them all grew past 6 GB),
 and child processes whose programs run long (the documentation's examples, the
-notebooks) get XLA's default flags (:func:`xla_defaults_env`).
+notebooks that run more than they compile) get XLA's default flags (:func:`xla_defaults_env`).
 """
 
 from __future__ import annotations
@@ -65,6 +65,29 @@ def pytest_configure(config):
     # jax was imported above, before the variables were set: configure it directly too.
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_ENV])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(os.environ[_MIN_COMPILE_ENV]))
+
+
+# The slowest test files, slowest first (worker-seconds on two cores): collected first, so that xdist
+# (``--dist loadfile --no-loadscope-reorder``: whole files, in collection order) starts them first; a
+# slow file started last would leave the other worker idle at the end.
+SLOW_FILES = (
+    "tests/slam/test_fastslam.py",
+    "tests/experiments/test_experiments_quick.py",
+    "tests/test_notebooks.py",
+    "tests/slam/test_pf_slam.py",
+    "tests/test_cli.py",
+    "tests/experiments/test_ir_experiments.py",
+    "tests/slam/test_hf_slam_runs.py",
+    "tests/core/test_resampling_exact.py",
+    "tests/localization/test_rfid_anchor.py",
+    "tests/localization/test_localization_agreement.py",
+    "tests/slam/test_scan_body_hlo.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {path: i for i, path in enumerate(SLOW_FILES)}
+    items.sort(key=lambda item: rank.get(item.nodeid.partition("::")[0], len(SLOW_FILES)))  # stable: files stay whole
 
 
 def pytest_unconfigure(config):

@@ -1,4 +1,8 @@
-"""The ``jaxnav`` command, run as a user would (a subprocess, from outside the repository)."""
+"""The ``jaxnav`` command, run as a user would (a subprocess, from outside the repository).
+
+The refusals and the listing run :func:`jaxnav.cli.main` in this process instead: a subprocess spends
+most of its time importing jax, and the exit status and output are the same.
+"""
 
 import os
 import subprocess
@@ -13,6 +17,19 @@ def _jaxnav(*args, cwd):
     return subprocess.run(
         [sys.executable, "-m", "jaxnav.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600
     )
+
+
+def _jaxnav_in_process(capsys, *args):
+    """``jaxnav ARGS`` by :func:`jaxnav.cli.main`: ``(exit status, stdout, stderr)``."""
+    from jaxnav.cli import main
+
+    capsys.readouterr()
+    try:
+        status = main(list(args))
+    except SystemExit as exit:  # argparse's refusals
+        status = exit.code
+    out = capsys.readouterr()
+    return status, out.out, out.err
 
 
 def test_version(tmp_path):
@@ -35,13 +52,10 @@ def test_demo_prints_errors_and_writes_png(tmp_path):
     assert os.path.getsize(png) > 10_000
 
 
-def test_demo_rejects_bad_arguments(tmp_path):
-    out = _jaxnav("demo", "--steps", "0", "--out", "", cwd=tmp_path)
-    assert out.returncode == 2
-    assert (
-        out.stderr
-        == "jaxnav demo: error: argument --steps: must be a positive integer, got 0 (see 'jaxnav demo --help')\n"
-    )
+def test_demo_rejects_bad_arguments(capsys):
+    status, _, err = _jaxnav_in_process(capsys, "demo", "--steps", "0", "--out", "")
+    assert status == 2
+    assert err == "jaxnav demo: error: argument --steps: must be a positive integer, got 0 (see 'jaxnav demo --help')\n"
 
 
 def test_mrclam_algorithm_list_matches_the_experiment():
@@ -86,10 +100,10 @@ def test_ir_runs_a_drive_and_writes_png(tmp_path):
         (("--speed-mm", "-5"), "speed"),
     ],
 )
-def test_ir_rejects_bad_arguments(tmp_path, args, message):
-    out = _jaxnav("ir", *args, "--out", "", cwd=tmp_path)
-    assert out.returncode == 2
-    assert message in out.stderr
+def test_ir_rejects_bad_arguments(capsys, args, message):
+    status, _, err = _jaxnav_in_process(capsys, "ir", *args, "--out", "")
+    assert status == 2
+    assert message in err
 
 
 def test_ir_says_when_the_filter_never_started(capsys):
@@ -108,11 +122,11 @@ def test_ir_says_when_the_filter_never_started(capsys):
     assert all(float(v) > 0 for v in odometry[1:])
 
 
-def test_experiments_list_names_the_ir_experiments(tmp_path):
-    out = _jaxnav("experiments", "list", cwd=tmp_path)
-    assert out.returncode == 0
+def test_experiments_list_names_the_ir_experiments(capsys):
+    status, out, _ = _jaxnav_in_process(capsys, "experiments", "list")
+    assert status == 0
     for name in ("table-5.2", "table-5.3", "ir-failure", "ir-speeds", "ir-rotation"):
-        assert name in out.stdout
+        assert name in out
 
 
 def test_uhf_real_weightings_match_the_filter():
@@ -163,7 +177,7 @@ def test_uhf_real_localizes_the_real_tags(tmp_path, adarf_dir):
         (("--experiment", "no-such"), "unknown experiment"),
     ],
 )
-def test_uhf_real_rejects_bad_arguments(tmp_path, adarf_dir, args, message):
-    out = _jaxnav("uhf-real", *args, "--data", adarf_dir, "--out", "", cwd=tmp_path)
-    assert out.returncode == 2
-    assert message in out.stderr
+def test_uhf_real_rejects_bad_arguments(capsys, adarf_dir, args, message):
+    status, _, err = _jaxnav_in_process(capsys, "uhf-real", *args, "--data", adarf_dir, "--out", "")
+    assert status == 2
+    assert message in err

@@ -98,6 +98,7 @@ __all__ = [
     "inputs_in_domain",
     "params_in_domain",
     "flag_invalid_inputs",
+    "promote_half_precision",
 ]
 
 
@@ -105,7 +106,7 @@ def _no_check(*args: Any, **kwargs: Any) -> None:
     return None
 
 
-def _promote_half_precision(config: Any, *inputs: Any) -> tuple:
+def promote_half_precision(config: Any, *inputs: Any) -> tuple:
     """The default ``prepare``: floating-point input arrays in half precision (float16, bfloat16)
     become float32 (a filter's arithmetic, log-weights and squared distances, is not meaningful in
     half precision, as :func:`~jaxnav.core.validation.float_array` states); the rest is unchanged."""
@@ -182,7 +183,7 @@ class FilterSpec:
     check_params: Callable[[Any, Any], None] = _no_check
     check_state: Callable[[Any, Any, Any], None] = _no_check
     check_inputs: Callable[..., None] = _no_check
-    prepare: Callable[..., tuple] = _promote_half_precision
+    prepare: Callable[..., tuple] = promote_half_precision
     deterministic: bool = False
     donate_step: bool = False
     unroll: Callable[[Any], int] = _one_step_per_iteration

@@ -6,7 +6,7 @@ JAX computes in float32 and int32 unless ``jax_enable_x64`` is set, and then has
 no 64-bit integer at all. Resampling needs more than that: at a million particles
 a particle's weight is about 1e-6 of the total, while float32 moves in steps of
 6e-8 near the top of a cumulative sum, so a float32 CDF cannot tell neighbouring
-particles apart (:mod:`jaxnav.core.resampling` explains the consequences). Integer
+particles apart (:mod:`jaxnav.core.integer_cdf` explains the consequences). Integer
 sums are exact and associative, so a CDF held as 64-bit integers is the same
 however it is summed (blocked, on one device or several), and a particle of zero
 weight adds exactly nothing to it.

@@ -4,7 +4,7 @@
   landmark data with Vicon ground truth), discretised into filter steps.
 * :mod:`jaxnav.io.adarf` — AdaRF real UHF-RFID reads (RSSI and phase over 8
   channels at 50 antenna positions, three tags with known positions), as
-  :class:`~jaxnav.models.uhf_rfid.UHFReads` filter steps.
+  :class:`~jaxnav.models.uhf_reads.UHFReads` filter steps.
 
 Both find their dataset in ``root``, the environment variable ``JAXNAV_DATA`` or ``../shared/data``, and
 raise :class:`DataNotFoundError` (a ``FileNotFoundError``) naming the folders tried and the download page

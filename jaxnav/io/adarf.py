@@ -23,7 +23,7 @@ the repository (:func:`data_dir`) and offers:
    of other EPCs (stray and non-target tags) are dropped and counted
    (``num_stray``). Cached in memory per process.
 2. :func:`to_uhf_reads` — one tag's reads as the fixed-slot
-   :class:`~jaxnav.models.uhf_rfid.UHFReads` that
+   :class:`~jaxnav.models.uhf_reads.UHFReads` that
    :mod:`jaxnav.localization.rfid_tag` takes: one filter step per aperture
    point, ``reads_per_channel`` reads of each channel per step.
 
@@ -38,7 +38,7 @@ breakpoint ``4π h² / λ ≈ 39 m`` is far beyond the 0.5–1.2 m ranges, so th
 power model is in its free-space branch and the height value does not matter.
 
 *RSSI.* Reported in dBm (0.5 dB steps); converted to W with
-:func:`~jaxnav.models.uhf_rfid.dbm_to_watt`.
+:func:`~jaxnav.models.uhf_channel.dbm_to_watt`.
 
 *Phase convention.* The reader's phase **increases** with distance,
 ``φ_reader = 4πD/λ + c`` (checked against the ground truth by
@@ -471,7 +471,7 @@ def to_uhf_reads(
     align_channels: bool = True,
     antenna_height: float = 1.0,
 ) -> U.UHFReads:
-    """Tag ``tag``'s reads as :class:`~jaxnav.models.uhf_rfid.UHFReads` ``[NUM_POINTS, J]``, one step per aperture point.
+    """Tag ``tag``'s reads as :class:`~jaxnav.models.uhf_reads.UHFReads` ``[NUM_POINTS, J]``, one step per aperture point.
 
     Args:
         exp: from :func:`load_experiment`.

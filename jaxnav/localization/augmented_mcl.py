@@ -10,7 +10,7 @@ comparing the short-term with the long-term likelihood of the observations
 Tab. 8.3. Each step:
 
 1. move every particle with a draw of the motion model and weight it by the
-   range-bearing likelihood (as :mod:`jaxnav.localization.mcl`, [A] Alg. 3
+   sensor's likelihood (as :mod:`jaxnav.localization.mcl`, [A] Alg. 3
    lines 3–4; the shared helper :func:`jaxnav.localization.mcl.move_and_weight`);
 2. the average observation likelihood ``w_avg = Σ_i w̄_{t−1,i} p(z_t | x_t^i)``
    (Tab. 8.3 line 6 with uniform ``w̄_{t−1}``, which it always is here,
@@ -85,7 +85,15 @@ from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.validation import check_choice, check_finite, check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS
+from jaxnav.models.motion import MotionModel, check_motion_model
+from jaxnav.models.sensor import (
+    ParticleSensor,
+    check_pose_filter_inputs,
+    check_pose_filter_params,
+    check_sensor,
+    pose_filter_inputs_in_domain,
+    prepare_pose_filter_inputs,
+)
 
 __all__ = [
     "AugmentedMCLConfig",
@@ -109,7 +117,8 @@ class AugmentedMCLConfig:
 
     Attributes:
         num_particles: N, number of pose particles.
-        motion_model: name in :data:`jaxnav.models.motion.MODELS`.
+        motion_model: a name in :data:`jaxnav.models.motion.MODELS` or a
+            :class:`~jaxnav.models.motion.MotionModel`.
         resampling: name in :data:`jaxnav.core.resampling.SCHEMES`; every
             step resamples (Tab. 8.3), so there is no ESS threshold.
         alpha_slow: decay rate of the long-term likelihood average, per step.
@@ -122,19 +131,25 @@ class AugmentedMCLConfig:
             ``alpha_slow`` forgets the pre-kidnap likelihood sooner but injects
             during tracking too; a smaller one keeps ``p_inject ≈ 1`` longer
             after a kidnap, which throws away good hypotheses as they appear.
+        sensor: the :class:`~jaxnav.models.sensor.ParticleSensor` that weights the particles
+            (default: range-bearing observations of a known landmark map, with
+            :class:`AugmentedMCLParams`; another sensor takes any params pytree with the fields
+            ``motion``, ``bounds`` and those it reads).
     """
 
     # the fields that size the state, named when it is too large (jaxnav.core.memory)
     SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 1000
-    motion_model: str = "velocity"
+    motion_model: str | MotionModel = "velocity"
     resampling: str = "systematic"
     alpha_slow: float = 0.02
     alpha_fast: float = 0.2
+    sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_sensor("sensor", self.sensor)
+        check_motion_model("motion_model", self.motion_model)
         check_choice("resampling", self.resampling, resampling.SCHEMES)
         for name in ("alpha_slow", "alpha_fast"):
             value = getattr(self, name)
@@ -212,9 +227,11 @@ class AugmentedMCLInfo(PFInfo):
 
 
 def _validate_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> None:
-    if not isinstance(params, AugmentedMCLParams):
+    if config.sensor is lm.RANGE_BEARING_SENSOR and not isinstance(params, AugmentedMCLParams):
         raise ValueError(f"params must be an AugmentedMCLParams, got {type(params).__name__}")
-    lm.validate_map_params(config.motion_model, params)
+    check_pose_filter_params(config, params)
+    if not hasattr(params, "bounds"):
+        raise ValueError(f"params must have a 'bounds' field (x_min, x_max, y_min, y_max), got {type(params).__name__}")
     check_shape("params.bounds", params.bounds, (4,))
     check_finite("params.bounds", params.bounds)
     if is_concrete(params.bounds):
@@ -239,12 +256,14 @@ def _with_averages(state: mcl.MCLState) -> AugmentedMCLState:
     return AugmentedMCLState(state.particles, state.log_weights, minus_inf, minus_inf)
 
 
-def _as_mcl_params(params: AugmentedMCLParams) -> mcl.MCLParams:
+def _as_mcl_params(config: AugmentedMCLConfig, params: AugmentedMCLParams) -> Any:
+    if config.sensor is not lm.RANGE_BEARING_SENSOR:
+        return params  # another sensor's params are the user's pytree, read by field
     return mcl.MCLParams(params.motion, params.sensor, params.landmarks)
 
 
 def _as_mcl_config(config: AugmentedMCLConfig) -> mcl.MCLConfig:
-    return mcl.MCLConfig(config.num_particles, config.motion_model, config.resampling)
+    return mcl.MCLConfig(config.num_particles, config.motion_model, config.resampling, sensor=config.sensor)
 
 
 @memory.guard_init
@@ -259,7 +278,9 @@ def init(
     ``w_slow = w_fast = 0``. Same draw as :func:`jaxnav.localization.mcl.init` for the same key."""
     filter_api.check_key(key)
     _validate_params(config, params)
-    return _with_averages(mcl.init(key, _as_mcl_config(config), _as_mcl_params(params), initial_pose, initial_sd))
+    return _with_averages(
+        mcl.init(key, _as_mcl_config(config), _as_mcl_params(config, params), initial_pose, initial_sd)
+    )
 
 
 @memory.guard_init
@@ -274,7 +295,7 @@ def init_uniform(
     _validate_params(config, params)
     if bounds is None:
         bounds = tuple(float(b) for b in np.asarray(params.bounds))
-    return _with_averages(mcl.init_uniform(key, _as_mcl_config(config), _as_mcl_params(params), bounds))
+    return _with_averages(mcl.init_uniform(key, _as_mcl_config(config), _as_mcl_params(config, params), bounds))
 
 
 # ---------------------------------------------------------------------------
@@ -295,12 +316,12 @@ def injection_probability(log_w_slow: jax.Array, log_w_fast: jax.Array) -> jax.A
 
 
 def _inputs_in_domain(
-    config: AugmentedMCLConfig, params: AugmentedMCLParams, control: jax.Array, obs: lm.RangeBearingObs
+    config: AugmentedMCLConfig, params: AugmentedMCLParams, control: jax.Array, obs: Any
 ) -> jax.Array:
-    """``bool[]``: :func:`jaxnav.models.landmarks.filter_inputs_in_domain` and map bounds with
+    """``bool[]``: :func:`jaxnav.models.sensor.pose_filter_inputs_in_domain` and map bounds with
     ``x_min < x_max``, ``y_min < y_max`` (the value checks of the host, as ``jnp``)."""
     b = params.bounds
-    return lm.filter_inputs_in_domain(config, params, control, obs) & (b[1] > b[0]) & (b[3] > b[2])
+    return pose_filter_inputs_in_domain(config, params, control, obs) & (b[1] > b[0]) & (b[3] > b[2])
 
 
 @filter_api.guard_inputs(_inputs_in_domain)
@@ -310,11 +331,13 @@ def kernel(
     config: AugmentedMCLConfig,
     params: AugmentedMCLParams,
     control: jax.Array,
-    obs: lm.RangeBearingObs,
+    obs: Any,
 ) -> tuple[AugmentedMCLState, AugmentedMCLInfo]:
     """One augmented-MCL update, pure and traceable (:func:`step` is it validated and jitted)."""
     k_move, k_resample, k_mask, k_pose = jax.random.split(key, 4)
-    w = mcl.move_and_weight(k_move, state.particles, state.log_weights, config.motion_model, params, control, obs)
+    w = mcl.move_and_weight(
+        k_move, state.particles, state.log_weights, config.motion_model, params, control, obs, config.sensor
+    )
     particles, probs = w.particles, w.probs
     dtype = particles.dtype
 
@@ -359,11 +382,13 @@ step, run = filter_api.build(
         state_type=AugmentedMCLState,
         check_params=_validate_params,
         check_state=_validate_state,
-        check_inputs=lm.check_filter_inputs,
+        check_inputs=check_pose_filter_inputs,
+        prepare=prepare_pose_filter_inputs,
         valid_inputs=_inputs_in_domain,
         time_inputs=("controls", "observations"),
         step_doc="""One augmented-MCL update (Thrun et al. Tab. 8.3) with ``control [control_dim]`` and one
-        step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",
+        step's observation of ``config.sensor`` (range-bearing: a
+        :class:`~jaxnav.models.landmarks.RangeBearingObs`).""",
         run_doc="""Augmented MCL over a sequence: ``controls [T, control_dim]``, observations with leading axis
         ``T``, ``state`` from :func:`init` or :func:`init_uniform`; ``trace`` an :class:`AugmentedMCLInfo`.""",
     ),

@@ -39,9 +39,9 @@ import jax.numpy as jnp
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_choice, check_covariance, check_magnitude, check_shape
+from jaxnav.core.validation import check_covariance, check_magnitude, check_shape
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import check_motion_model, get_motion_model
 
 __all__ = ["EKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "kernel", "step", "run"]
 
@@ -63,7 +63,7 @@ class EKFConfig:
     gate_probability: float | None = None
 
     def __post_init__(self) -> None:
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
         if self.gate_probability is not None:
             kalman.chi2_gate(self.gate_probability, 2)  # raises a ValueError naming the problem
 

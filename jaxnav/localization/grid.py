@@ -127,7 +127,7 @@ from jaxnav.core.validation import (
     is_concrete,
 )
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model, validate_controls
+from jaxnav.models.motion import check_motion_model, get_motion_model, validate_controls
 
 __all__ = [
     "GridConfig",
@@ -193,7 +193,7 @@ class GridConfig:
         check_positive_int("ntheta", self.ntheta)
         check_positive_int("kernel_radius", self.kernel_radius)
         _check_grid_size(self.nx, self.ny, self.ntheta)
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
         check_choice("association", self.association, ASSOCIATIONS)
 
     @property

@@ -4,7 +4,7 @@
 
 The robot carries ``R`` upward-looking IR receivers (two in [W], one on each
 side of the robot top, Fig. 5.4) and localises against ceiling emitters of
-known positions (:class:`jaxnav.models.ir.EmitterLayout`): unique-ID LED
+known positions (:class:`jaxnav.models.ir_layouts.EmitterLayout`): unique-ID LED
 arrays and repeated-ID single LEDs ([W] §5.1). A receiver window yields at
 most one emitter ID and the level ``V`` (V) read for it
 (:class:`jaxnav.models.ir.IRDetection`).
@@ -99,6 +99,13 @@ over-confident in eq. 5.3.
 Not used: the absence of a detection (a particle under an emitter that the
 receiver does not see) carries information that [W] does not use either.
 
+The sensor. The receivers' likelihood and the attribution of a detection to its emitter are
+:mod:`jaxnav.models.ir_sensor`'s, whose :data:`~jaxnav.models.ir_sensor.IR_RECEIVERS` runs them in
+plain MCL too. This filter is not MCL with that sensor because of what is its own: the start at the
+first unique ID and the restart when lost replace the particle set in the middle of a step (a
+``lax.cond`` between the move and the weighting), and a repeated ID is attributed by the weights
+carried from the last step, which MCL's sensor seam does not see.
+
 Interface (shared by every jaxnav filter)::
 
     state = ir_mcl.init(key, config, params, area)
@@ -127,19 +134,12 @@ from jaxnav.core import filter as filter_api
 from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
-    all_positive,
     check_choice,
-    check_finite,
     check_fraction,
-    check_magnitude,
-    check_positive,
     check_positive_int,
-    check_real,
     check_shape,
-    finite_within,
-    is_concrete,
 )
-from jaxnav.models import ir
+from jaxnav.models import ir, ir_sensor
 from jaxnav.models.ir import IRDetection
 from jaxnav.models.motion import (
     MODELS,
@@ -377,29 +377,7 @@ def _validate_params(config: IRMCLConfig, params: IRMCLParams) -> None:
     if not isinstance(params, IRMCLParams):
         raise ValueError(f"params must be an IRMCLParams, got {type(params).__name__}")
     validate_motion_noise(config.motion_model, params.motion)
-    if not isinstance(params.layout, ir.EmitterLayout):
-        raise ValueError(f"params.layout must be an EmitterLayout, got {type(params.layout).__name__}")
-    if is_concrete(params.layout):
-        ir.validate_layout(params.layout)
-    else:
-        check_shape("params.layout.positions", params.layout.positions, (None, 2))
-    if not isinstance(params.voltage, ir.VoltageModel):
-        raise ValueError(f"params.voltage must be a VoltageModel, got {type(params.voltage).__name__}")
-    for name, c in zip(ir.VoltageModel._fields, params.voltage):
-        check_shape(f"params.voltage.{name}", c, ())
-        check_finite(f"params.voltage.{name}", c)
-    check_shape("params.sigma_v", params.sigma_v, ())
-    check_positive("params.sigma_v (σ of [W] eq. 5.2, V)", params.sigma_v)
-    check_shape("params.offsets", params.offsets, (None, 2))
-    if np.shape(params.offsets)[0] < 1:
-        raise ValueError("params.offsets must hold at least one receiver")
-    check_finite("params.offsets", params.offsets)
-    check_shape("params.detection_range", params.detection_range, ())
-    check_positive("params.detection_range (m)", params.detection_range)
-    check_shape("params.log_floor", params.log_floor, ())
-    check_finite("params.log_floor", params.log_floor)
-    if is_concrete(params.log_floor) and float(params.log_floor) > 0.0:
-        raise ValueError(f"params.log_floor must be ≤ 0 (a log-likelihood floor), got {float(params.log_floor)}")
+    ir_sensor.validate_receiver_params(params)
 
 
 def _validate_state(config: IRMCLConfig, params: Any, state: IRMCLState) -> None:
@@ -410,32 +388,19 @@ def _validate_state(config: IRMCLConfig, params: Any, state: IRMCLState) -> None
 
 def _validate_inputs(config: IRMCLConfig, params: IRMCLParams, controls: Any, det: Any, time_axis: bool) -> None:
     validate_controls("controls" if time_axis else "control", controls, config.motion_model, time_axis)
-    dname = "detections" if time_axis else "detection"
-    if not isinstance(det, IRDetection):
-        raise ValueError(f"{dname} must be an IRDetection (jaxnav.models.ir), got {type(det).__name__}")
-    r = int(np.shape(params.offsets)[0])
-    t = (np.shape(controls)[0],) if time_axis else ()
-    for name in ("mask", "valid", "voltage"):
-        check_shape(f"{dname}.{name}", getattr(det, name), t + (r,))
-    check_shape(f"{dname}.amplitude", det.amplitude, t + (r, None))
-    check_real(f"{dname}.amplitude", det.amplitude)
-    check_magnitude(f"{dname}.voltage", det.voltage, limit=ir.MAX_VOLTAGE)
-    ir.check_levels(f"{dname}.voltage", det.voltage)
+    lead = (np.shape(controls)[0],) if time_axis else ()
+    ir_sensor.check_detections("detections" if time_axis else "detection", det, lead, int(np.shape(params.offsets)[0]))
 
 
 def _inputs_in_domain(config: IRMCLConfig, params: IRMCLParams, control: jax.Array, det: IRDetection) -> jax.Array:
     """``bool[]``, traceable: the control and the motion noise in the motion model's domain
     (:func:`jaxnav.models.motion.controls_in_domain`, :func:`jaxnav.models.motion.noise_in_domain`),
-    ``σ_V > 0``, ``detection_range > 0`` and ``log_floor ≤ 0``: the value checks of the host, as ``jnp``.
-    The detections are not part of it: an unusable level is dropped and counted."""
+    and the receivers' parameters (:func:`jaxnav.models.ir_sensor.receiver_params_in_domain`): the
+    value checks of the host, as ``jnp``. The detections are not part of it: an unusable level is
+    dropped and counted."""
     del det
-    return (
-        controls_in_domain(control, config.motion_model)
-        & noise_in_domain(config.motion_model, params.motion)
-        & all_positive(params.sigma_v)
-        & all_positive(params.detection_range)
-        & (params.log_floor <= 0)
-    )
+    ok = controls_in_domain(control, config.motion_model) & noise_in_domain(config.motion_model, params.motion)
+    return ir_sensor.receiver_params_in_domain(params, ok)
 
 
 # ---------------------------------------------------------------------------
@@ -482,13 +447,6 @@ def init(
 # step and run
 
 
-def _receiver_xy(particles: jax.Array, offsets: jax.Array) -> jax.Array:
-    """``[N, R, 2]`` world positions (m) of the receivers of every particle."""
-    c, s = jnp.cos(particles[:, 2])[:, None], jnp.sin(particles[:, 2])[:, None]
-    ox, oy = offsets[None, :, 0], offsets[None, :, 1]
-    return jnp.stack([particles[:, None, 0] + c * ox - s * oy, particles[:, None, 1] + s * ox + c * oy], axis=-1)
-
-
 _REDRAW_BINS = 512  # grid over e_d ∈ [0, detection_range] for the re-draw (0.55 mm bins at 283.6 mm)
 
 
@@ -521,28 +479,6 @@ def _redraw(key, headings, emitter_xy, offset, voltage, params):
     return jnp.stack([x, y, headings], axis=-1)
 
 
-def _attribute(particles, probs, mask, usable, params):
-    """[W] eq. 5.1 / Alg. 3 lines 6–11 for every receiver: ``(index [R], ok [R])``.
-
-    The emitter carrying the detected ID nearest the receiver's position
-    estimated from the weighted mean pose of ``particles``.
-    """
-    est = weights.mean_from_probabilities(particles, probs, _ANGLE_DIMS)
-    rx_est = ir.receiver_positions(est, params.offsets)  # [R, 2]
-    idx, ok = jax.vmap(ir.select_emitter, in_axes=(0, 0, None))(rx_est, mask, params.layout)
-    return idx, ok & usable
-
-
-def _loglik(particles, idx, apply, voltage, params):
-    """``[M]`` Σ over the applied receivers of eq. 5.2, floored; ``log_floor`` beyond the range."""
-    rx = _receiver_xy(particles, params.offsets)  # [M, R, 2]
-    d = rx - params.layout.positions[jnp.maximum(idx, 0)][None, :, :]
-    e_d = jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=-1), 1e-12))  # [M, R] m
-    ll = ir.log_likelihood(voltage[None, :], e_d, params.voltage, params.sigma_v)
-    ll = jnp.where(e_d <= params.detection_range, jnp.maximum(ll, params.log_floor), params.log_floor)
-    return jnp.sum(jnp.where(apply[None, :], ll, 0.0), axis=-1)
-
-
 @filter_api.guard_inputs(_inputs_in_domain)
 def kernel(
     key: jax.Array,
@@ -562,14 +498,10 @@ def kernel(
 
     # a level that is negative, not finite or beyond the limit (refused on the host, so only inside a
     # caller's jit) makes its detection unusable: dropped and counted in num_ignored
-    readable = finite_within(det.voltage, ir.MAX_VOLTAGE) & (det.voltage >= 0)
-    num_unusable = jnp.sum(det.valid & ~readable, dtype=jnp.int32)
-    det = det._replace(valid=det.valid & readable, voltage=jnp.where(readable, det.voltage, 0.0))
+    det, num_unusable = ir_sensor.usable_detections(det)
 
     # Alg. 3 line 5: which receivers saw an emitter of the layout (a unique ID: its only carrier)
-    mask = jnp.where(det.valid, det.mask, 0).astype(jnp.int32)
-    match = mask[:, None] == layout.masks[None, :]  # [R, E]
-    known = det.valid & jnp.any(match, axis=-1)
+    mask, match, known = ir_sensor.known_detections(det, layout)
     is_unique = known & (ir.popcount(mask) >= 2)
 
     # start at the first unique ID (module docstring): K·N candidates from receiver r0's posterior,
@@ -578,7 +510,7 @@ def kernel(
     # unique emitter it sees: the filter is lost, and the unique ID says where to look.
     carrier = jnp.argmax(match, axis=-1)  # [R] the emitter of a unique ID
     if config.restart_when_lost:
-        d = _receiver_xy(moved, params.offsets) - layout.positions[carrier][None, :, :]
+        d = ir_sensor.receiver_xy(moved, params.offsets) - layout.positions[carrier][None, :, :]
         reach = jnp.any(jnp.sum(d * d, axis=-1) <= params.detection_range**2, axis=0)  # [R]
         restart_r = is_unique & (~state.started | ~reach)
     else:
@@ -594,20 +526,21 @@ def kernel(
         k_head, k_cand = jax.random.split(k_redraw)
         headings = rng.uniform(k_head, (k * n,), moved.dtype, -jnp.pi, jnp.pi)
         cand = _redraw(k_cand, headings, layout.positions[carrier[r0]], params.offsets[r0], det.voltage[r0], params)
-        idx, ok = _attribute(cand, jnp.full((k * n,), 1.0 / (k * n), cand.dtype), mask, known, params)
-        loglik = _loglik(cand, idx, ok & not_r0, det.voltage, params)
+        idx, ok = ir_sensor.attribute(cand, jnp.full((k * n,), 1.0 / (k * n), cand.dtype), mask, known, params)
+        loglik = ir_sensor.detections_log_likelihood(cand, idx, ok & not_r0, det.voltage, params)
         return jnp.take(cand, resampling.systematic(k_pick, loglik, n), axis=0)  # [A] App. B
 
     particles = jax.lax.cond(trigger, restart, lambda: moved)
     prior_lw = jnp.where(trigger, uniform, state.log_weights)
 
     # Alg. 3 lines 6–11: the emitter of each detection, by the belief of eq. 5.1 at the predicted estimate
-    idx, ok = _attribute(particles, jnp.exp(prior_lw), mask, known & started, params)
+    idx, ok = ir_sensor.attribute(particles, jnp.exp(prior_lw), mask, known & started, params)
     emitter = jnp.where(ok, idx, -1).astype(jnp.int32)
 
     # Alg. 3 lines 12–14: eq. 5.2 for each used receiver (at the restart already in the particles)
     apply = ok & ~trigger
-    particles, loglik = keep_finite(state.particles, particles, _loglik(particles, idx, apply, det.voltage, params))
+    loglik = ir_sensor.detections_log_likelihood(particles, idx, apply, det.voltage, params)
+    particles, loglik = keep_finite(state.particles, particles, loglik)
     norm = weights.normalize(prior_lw + loglik)
 
     # eq. 5.4 and Alg. 3 lines 16–20 (resampling only at a step that weighted the particles)
@@ -629,7 +562,7 @@ def kernel(
 
 
 def _prepare(config: IRMCLConfig, controls: jax.Array, detections: IRDetection) -> tuple[jax.Array, IRDetection]:
-    return jnp.asarray(controls, jnp.float32), _as_detection(detections)
+    return jnp.asarray(controls, jnp.float32), ir_sensor.IR_RECEIVERS.prepare(detections)
 
 
 step, run = filter_api.build(
@@ -658,12 +591,3 @@ step, run = filter_api.build(
     ),
     __name__,
 )
-
-
-def _as_detection(det: IRDetection) -> IRDetection:
-    return IRDetection(
-        jnp.asarray(det.mask, jnp.int32),
-        jnp.asarray(det.valid, bool),
-        jnp.asarray(det.voltage, jnp.float32),
-        jnp.asarray(det.amplitude, jnp.float32),
-    )

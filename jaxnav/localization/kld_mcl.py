@@ -98,11 +98,19 @@ from jax.scipy.special import ndtri
 from jaxnav.core import filter as filter_api
 from jaxnav.core import memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo
-from jaxnav.core.validation import check_choice, check_positive_int, check_shape, is_concrete
+from jaxnav.core.validation import check_positive_int, check_shape, is_concrete
 from jaxnav.localization import mcl
 from jaxnav.localization.mcl import MCLParams
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS
+from jaxnav.models.motion import MotionModel, check_motion_model
+from jaxnav.models.sensor import (
+    ParticleSensor,
+    check_pose_filter_inputs,
+    check_pose_filter_params,
+    check_sensor,
+    pose_filter_inputs_in_domain,
+    prepare_pose_filter_inputs,
+)
 
 __all__ = [
     "KLDMCLConfig",
@@ -137,7 +145,11 @@ class KLDMCLConfig:
         delta: δ in (0, 1); the bound holds with probability ``1 − δ``.
         bin_size: histogram bin ``(Δx [m], Δy [m], Δθ [rad])``, each > 0;
             default 0.25 m × 0.25 m × 10°.
-        motion_model: name in :data:`jaxnav.models.motion.MODELS`.
+        motion_model: a name in :data:`jaxnav.models.motion.MODELS` or a
+            :class:`~jaxnav.models.motion.MotionModel`.
+        sensor: the :class:`~jaxnav.models.sensor.ParticleSensor` that weights the particles
+            (default: range-bearing observations of a known landmark map, with :class:`KLDMCLParams`;
+            another sensor takes any params pytree with a ``motion`` field and those it reads).
 
     Defaults ε = 0.05, δ = 0.01 give ``n_χ`` ≈ 66 for k = 2, ≈ 1,350 for
     k = 100 and ≈ 11,000 for k = 1,000 bins.
@@ -150,10 +162,12 @@ class KLDMCLConfig:
     epsilon: float = 0.05
     delta: float = 0.01
     bin_size: tuple[float, float, float] = (0.25, 0.25, math.radians(10.0))
-    motion_model: str = "velocity"
+    motion_model: str | MotionModel = "velocity"
+    sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR
 
     def __post_init__(self) -> None:
         check_positive_int("max_particles", self.max_particles)
+        check_sensor("sensor", self.sensor)
         check_positive_int("min_particles", self.min_particles)
         if self.min_particles > self.max_particles:
             raise ValueError(f"min_particles must be <= max_particles, got {self.min_particles} > {self.max_particles}")
@@ -169,7 +183,7 @@ class KLDMCLConfig:
             v = _real("bin_size", b)
             if not (v > 0.0 and math.isfinite(v)):
                 raise ValueError(f"bin_size entries must be finite and > 0, got {self.bin_size!r}")
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
 
 
 def _real(name: str, value) -> float:
@@ -283,9 +297,9 @@ def choose_count(k_prefix: jax.Array, config: KLDMCLConfig, dtype: Any) -> jax.A
 
 
 def _validate_params(config: KLDMCLConfig, params: MCLParams) -> None:
-    if not isinstance(params, MCLParams):
+    if config.sensor is lm.RANGE_BEARING_SENSOR and not isinstance(params, MCLParams):
         raise ValueError(f"params must be an MCLParams (KLDMCLParams), got {type(params).__name__}")
-    lm.validate_map_params(config.motion_model, params)
+    check_pose_filter_params(config, params)
 
 
 def _validate_state(config: KLDMCLConfig, params: Any, state: KLDMCLState) -> None:
@@ -303,7 +317,7 @@ def _validate_state(config: KLDMCLConfig, params: Any, state: KLDMCLState) -> No
 
 
 def _as_mcl_config(config: KLDMCLConfig) -> mcl.MCLConfig:
-    return mcl.MCLConfig(num_particles=config.max_particles, motion_model=config.motion_model)
+    return mcl.MCLConfig(num_particles=config.max_particles, motion_model=config.motion_model, sensor=config.sensor)
 
 
 def _with_count(state: mcl.MCLState, n: int) -> KLDMCLState:
@@ -341,14 +355,14 @@ def init_uniform(
 # step and run
 
 
-@filter_api.guard_inputs(lm.filter_inputs_in_domain)
+@filter_api.guard_inputs(pose_filter_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: KLDMCLState,
     config: KLDMCLConfig,
     params: MCLParams,
     control: jax.Array,
-    obs: lm.RangeBearingObs,
+    obs: Any,
 ) -> tuple[KLDMCLState, KLDMCLInfo]:
     """One KLD-sampling MCL update, pure and traceable (:func:`step` is it validated and jitted)."""
     n_max = config.max_particles
@@ -362,7 +376,7 @@ def kernel(
     log_w_in = jnp.where(
         active, weights.normalize(jnp.where(active, state.log_weights, -jnp.inf)).log_weights, -jnp.inf
     )
-    w = mcl.move_and_weight(k_move, particles_in, log_w_in, config.motion_model, params, control, obs)
+    w = mcl.move_and_weight(k_move, particles_in, log_w_in, config.motion_model, params, control, obs, config.sensor)
     # normalize() resets a degenerate set to uniform over all N_max slots: re-mask it.
     uniform_active = jnp.where(active, -jnp.log(n_prev.astype(dtype)), -jnp.inf)
     log_w = jnp.where(w.norm.degenerate, uniform_active, jnp.where(active, w.norm.log_weights, -jnp.inf))
@@ -414,11 +428,13 @@ step, run = filter_api.build(
         state_values=_active_slots,
         check_params=_validate_params,
         check_state=_validate_state,
-        check_inputs=lm.check_filter_inputs,
-        valid_inputs=lm.filter_inputs_in_domain,
+        check_inputs=check_pose_filter_inputs,
+        prepare=prepare_pose_filter_inputs,
+        valid_inputs=pose_filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
         step_doc="""One KLD-sampling MCL update (Thrun et al. Tab. 8.4, fixed shapes) with ``control
-        [control_dim]`` and one step's :class:`~jaxnav.models.landmarks.RangeBearingObs`.""",
+        [control_dim]`` and one step's observation of ``config.sensor`` (range-bearing: a
+        :class:`~jaxnav.models.landmarks.RangeBearingObs`).""",
         run_doc="""KLD-sampling MCL over a sequence: ``controls [T, control_dim]``, observations with leading
         axis ``T``, ``state`` from :func:`init` or :func:`init_uniform`; ``trace`` a :class:`KLDMCLInfo`
         (``trace.num_active`` is ``[T]``).""",

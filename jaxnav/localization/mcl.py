@@ -5,9 +5,8 @@
 A bootstrap particle filter over poses ``(x, y, θ)``. Each step ([A] Alg. 3):
 
 1. move every particle with a draw of the motion model (line 3);
-2. weight it by the range-bearing likelihood ``p(z_t | x_t, m)`` of the
-   step's observed landmarks (line 4), on the log scale and multiplied into the
-   weights carried from the last step;
+2. weight it by the sensor's likelihood ``p(z_t | x_t)`` (line 4), on the log scale and multiplied
+   into the weights carried from the last step;
 3. estimate the pose as the weighted mean, heading on the circle (line 11) —
    taken *before* resampling, which adds noise and no information;
 4. resample (lines 7–10) when the ESS falls below ``ess_threshold · N``.
@@ -25,6 +24,15 @@ Interface (shared by every jaxnav filter)::
 ``run`` scans ``step`` over time; the key of step ``t`` is
 ``jax.random.fold_in(key, t)``, so ``run`` and a loop of ``step`` calls with
 those keys give identical results.
+
+**Sensors and motion models.** ``MCLConfig.sensor`` is any
+:class:`~jaxnav.models.sensor.ParticleSensor`; the default,
+:data:`~jaxnav.models.landmarks.RANGE_BEARING_SENSOR`, weights by range-bearing observations of the
+landmarks of ``params.landmarks`` ([A] Alg. 3), with ``params`` an :class:`MCLParams`. Another
+sensor brings its own observations and reads its own fields of ``params``, any pytree with a
+``motion`` field (the motion model's noise). ``MCLConfig.motion_model`` is a name in
+:data:`jaxnav.models.motion.MODELS` or any :class:`~jaxnav.models.motion.MotionModel`.
+Augmented MCL and KLD-MCL take both the same way.
 
 Robustness: a masked observation slot, or one whose landmark id is not in the
 map, is ignored (and counted in ``info.num_ignored``); a step in which every
@@ -57,7 +65,15 @@ from jaxnav.core.validation import (
     float_array,
 )
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import MotionModel, check_motion_model, get_motion_model
+from jaxnav.models.sensor import (
+    ParticleSensor,
+    check_pose_filter_inputs,
+    check_pose_filter_params,
+    check_sensor,
+    pose_filter_inputs_in_domain,
+    prepare_pose_filter_inputs,
+)
 
 __all__ = [
     "MCLConfig",
@@ -82,32 +98,38 @@ class MCLConfig:
 
     Attributes:
         num_particles: N, number of pose particles.
-        motion_model: name in :data:`jaxnav.models.motion.MODELS`.
+        motion_model: a name in :data:`jaxnav.models.motion.MODELS` or a
+            :class:`~jaxnav.models.motion.MotionModel`.
         resampling: name in :data:`jaxnav.core.resampling.SCHEMES`.
         ess_threshold: resample when ESS < ``ess_threshold · N``; in (0, 1];
             1.0 resamples every step ([A] Alg. 3).
         gaussian_refresh: redraw the resampled set from its fitted Gaussian
             ([A] §4.3.3); meant for static targets, off for a moving robot.
+        sensor: the :class:`~jaxnav.models.sensor.ParticleSensor` that weights the particles
+            (default: range-bearing observations of a known landmark map).
     """
 
     # the fields that size the state, named when it is too large (jaxnav.core.memory)
     SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("num_particles",)
     num_particles: int = 1000
-    motion_model: str = "velocity"
+    motion_model: str | MotionModel = "velocity"
     resampling: str = "systematic"
     ess_threshold: float = 1.0
     gaussian_refresh: bool = False
+    sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_sensor("sensor", self.sensor)
+        check_motion_model("motion_model", self.motion_model)
         check_choice("resampling", self.resampling, resampling.SCHEMES)
         check_fraction("ess_threshold", self.ess_threshold)
 
 
 MCLParams = lm.LandmarkMapParams
-"""MCL's differentiable parameters, :class:`jaxnav.models.landmarks.LandmarkMapParams` (motion noise,
-range-bearing noise, landmarks ``[M, 2]`` in m), shared with the grid, EKF and UKF filters."""
+"""MCL's differentiable parameters with its default sensor, :class:`jaxnav.models.landmarks.LandmarkMapParams`
+(motion noise, range-bearing noise, landmarks ``[M, 2]`` in m), shared with the grid, EKF and UKF
+filters. Another sensor takes any pytree with a ``motion`` field and the fields it reads."""
 
 
 class MCLState(NamedTuple):
@@ -149,9 +171,9 @@ class MCLInfo(PFInfo):
 
 
 def _validate_params(config: MCLConfig, params: MCLParams) -> None:
-    if not isinstance(params, MCLParams):
+    if config.sensor is lm.RANGE_BEARING_SENSOR and not isinstance(params, MCLParams):
         raise ValueError(f"params must be an MCLParams, got {type(params).__name__}")
-    lm.validate_map_params(config.motion_model, params)
+    check_pose_filter_params(config, params)
 
 
 def _validate_state(config: MCLConfig, params: Any, state: MCLState) -> None:
@@ -228,7 +250,7 @@ class Weighted(NamedTuple):
         norm: :class:`jaxnav.core.weights.Normalized` of ``log w̄_{t−1} + log p(z_t | x_t)``;
             ``norm.log_norm`` is the log marginal-likelihood increment.
         probs: ``[N]`` ``exp(norm.log_weights)``.
-        num_ignored: int32, observation slots whose id is not in the map.
+        num_ignored: int32, observation slots the sensor dropped (range-bearing: id not in the map).
     """
 
     particles: jax.Array
@@ -241,40 +263,44 @@ def move_and_weight(
     key: jax.Array,
     particles: jax.Array,
     log_weights: jax.Array,
-    motion_model: str,
+    motion_model: str | MotionModel,
     params: Any,
     control: jax.Array,
-    obs: lm.RangeBearingObs,
+    obs: Any,
+    sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR,
 ) -> Weighted:
-    """Move ``particles [N, 3]`` by a draw of ``motion_model`` and weight them by ``obs``.
+    """Move ``particles [N, 3]`` by a draw of ``motion_model`` and weight them by ``sensor``'s
+    likelihood of ``obs``.
 
     ``log_weights`` must be normalised (entries of ``-inf`` stay ``-inf``:
-    masked particles keep zero weight). ``params`` needs the fields
-    ``motion``, ``sensor`` and ``landmarks``. Shared by MCL and its augmented
+    masked particles keep zero weight). ``params`` needs the field ``motion`` and those the sensor
+    reads (range-bearing: ``sensor`` and ``landmarks``). Shared by MCL and its augmented
     and KLD-sampling variants; traceable, not jitted on its own.
     """
     model = get_motion_model(motion_model)
     moved = materialize(model.sample(key, particles, control, params.motion))
-    positions, valid, num_ignored = lm.lookup(params.landmarks, obs)
-    moved, loglik = keep_finite(particles, moved, lm.log_likelihood(moved, positions, obs.z, valid, params.sensor))
+    moved, loglik = keep_finite(particles, moved, sensor.log_likelihood(moved, obs, params))
+    num_ignored = sensor.num_ignored(obs, params)
     # log_weights is normalised, so the normaliser of the product is the
     # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
     norm = weights.normalize(log_weights + loglik)
     return Weighted(moved, norm, jnp.exp(norm.log_weights), num_ignored)
 
 
-@filter_api.guard_inputs(lm.filter_inputs_in_domain)
+@filter_api.guard_inputs(pose_filter_inputs_in_domain)
 def kernel(
     key: jax.Array,
     state: MCLState,
     config: MCLConfig,
     params: MCLParams,
     control: jax.Array,
-    obs: lm.RangeBearingObs,
+    obs: Any,
 ) -> tuple[MCLState, MCLInfo]:
     """One MCL update ([A] Alg. 3), pure and traceable (:func:`step` is it validated and jitted)."""
     k_move, k_resample = jax.random.split(key)
-    w = move_and_weight(k_move, state.particles, state.log_weights, config.motion_model, params, control, obs)
+    w = move_and_weight(
+        k_move, state.particles, state.log_weights, config.motion_model, params, control, obs, config.sensor
+    )
     res, base = finish_step(
         k_resample,
         w.particles,
@@ -295,11 +321,13 @@ step, run = filter_api.build(
         state_type=MCLState,
         check_params=_validate_params,
         check_state=_validate_state,
-        check_inputs=lm.check_filter_inputs,
-        valid_inputs=lm.filter_inputs_in_domain,
+        check_inputs=check_pose_filter_inputs,
+        prepare=prepare_pose_filter_inputs,
+        valid_inputs=pose_filter_inputs_in_domain,
         time_inputs=("controls", "observations"),
-        step_doc="""One MCL update ([A] Alg. 3) with ``control [control_dim]`` and one step's observations
-        (:class:`~jaxnav.models.landmarks.RangeBearingObs` with slots ``[K]``).""",
+        step_doc="""One MCL update ([A] Alg. 3) with ``control [control_dim]`` and one step's observation
+        of ``config.sensor`` (range-bearing: :class:`~jaxnav.models.landmarks.RangeBearingObs` with slots
+        ``[K]``).""",
         run_doc="""MCL over a whole sequence: ``controls [T, control_dim]`` and observations with leading
         axis ``T``; ``state`` from :func:`init` or :func:`init_uniform`. ``trace`` is an
         :class:`MCLInfo` stacked over ``T`` (``trace.estimate`` is ``[T, 3]``).""",

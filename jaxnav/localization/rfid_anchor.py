@@ -24,7 +24,7 @@ yaw of its antenna (rad) and the unknown phase offset of each anchor (rad).
 * lines 14–18: every anchor ``j`` read this step weights the particle by
   ``W_RSSI`` (the reader at the particle's pose, the anchor at ``g_j``) and
   ``W_PHASE`` (with the particle's ``θ_j``), in log form
-  (:func:`jaxnav.models.uhf_rfid.read_log_likelihood`; ``config.weighting``
+  (:func:`jaxnav.models.uhf_sensor.anchor_reads_log_likelihood`; ``config.weighting``
   keeps one or both);
 * lines 20–25: normalise; resample (systematic, [A] App. B) when
   ``ESS < ess_threshold · M``. Unlike Alg. 6 there is no Gaussian refresh:
@@ -33,9 +33,14 @@ yaw of its antenna (rad) and the unknown phase offset of each anchor (rad).
   circle). [A] takes it after resampling; we take it before (resampling adds
   noise and no information), as every jaxnav filter does.
 
-Observations: :class:`AnchorReads`, one slot per anchor (``K ≤ G`` valid
+The sensor. The reads' likelihood is :func:`jaxnav.models.uhf_sensor.anchor_reads_sensor`
+(``config.sensor``). The filter is not MCL with that sensor: its particles ``[M, 4 + G]`` carry the
+anchors' phase offsets beside a 3-D pose, and they move by an odometry increment with a random walk
+on the offsets, not by one of MCL's planar motion models.
+
+Observations: :class:`~jaxnav.models.uhf_sensor.AnchorReads`, one slot per anchor (``K ≤ G`` valid
 reads per step, [A] line 10). The reader pose is the state, so unlike
-:class:`~jaxnav.models.uhf_rfid.UHFReads` a read carries no pose.
+:class:`~jaxnav.models.uhf_reads.UHFReads` a read carries no pose.
 
 Interface::
 
@@ -72,13 +77,14 @@ from jaxnav.core.validation import (
     check_nonnegative,
     check_positive,
     check_positive_int,
-    check_real,
     check_shape,
     is_concrete,
 )
 from jaxnav.localization.rfid_tag import WEIGHTINGS
 from jaxnav.models import motion
 from jaxnav.models import uhf_rfid as U
+from jaxnav.models import uhf_sensor as US
+from jaxnav.models.sensor import ParticleSensor
 
 __all__ = [
     "AnchorReads",
@@ -97,20 +103,8 @@ FRAMES = motion.INCREMENT_FRAMES
 """Frames of the odometry increment (:data:`jaxnav.models.motion.INCREMENT_FRAMES`)."""
 
 
-class AnchorReads(NamedTuple):
-    """One step's reads, slot ``j`` = anchor ``j`` (leading ``[T]`` allowed).
-
-    Attributes:
-        rssi: ``[..., G]`` received power (W, > 0 where valid).
-        phase: ``[..., G]`` phase (rad, in ``[0, 2π)``).
-        wavelength: ``[..., G]`` channel wavelength (m).
-        mask: ``[..., G]`` bool: anchor ``j`` was read.
-    """
-
-    rssi: Any
-    phase: Any
-    wavelength: Any
-    mask: Any
+AnchorReads = US.AnchorReads
+"""One step's reads, slot ``j`` = anchor ``j`` (:class:`jaxnav.models.uhf_sensor.AnchorReads`)."""
 
 
 @dataclass(frozen=True)
@@ -141,6 +135,12 @@ class RFIDAnchorConfig:
         check_choice("odometry_frame", self.odometry_frame, FRAMES)
         if self.antenna_softness is not None:
             check_positive("antenna_softness", self.antenna_softness)
+
+    @property
+    def sensor(self) -> ParticleSensor:
+        """The sensor this filter weighs with, :func:`jaxnav.models.uhf_sensor.anchor_reads_sensor` of
+        ``weighting`` and ``antenna_softness``."""
+        return US.anchor_reads_sensor(self.weighting, self.antenna_softness)
 
 
 class RFIDAnchorParams(NamedTuple):
@@ -180,7 +180,7 @@ class RFIDAnchorInfo(PFInfo):
     """Per-step diagnostics: ``estimate [4 + G]`` (weighted mean; angles on the circle), ``ess``,
     ``resampled``, ``log_likelihood`` (increment), ``degenerate``, ``num_reads``, and
     ``num_ignored``: valid reads dropped because a value was not finite or out of range
-    (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside a
+    (:func:`jaxnav.models.uhf_reads.usable_reads`; the host refuses them, so only inside a
     caller's ``jit``), and ``invalid_inputs``: the step's control or parameters were outside the
     models' domain (a negative noise sd, a zero or negative power, gain, ``k``, ``θ`` or
     ``σ_phase``, a value that is not finite or exceeds
@@ -280,7 +280,7 @@ def _inputs_in_domain(
 ) -> jax.Array:
     """``bool[]``, traceable: the odometry increment finite and at most
     :data:`~jaxnav.core.validation.MAX_MAGNITUDE`, the noise sd's non-negative and the read model in
-    its domain (:func:`jaxnav.models.uhf_rfid.read_model_in_domain`): the value checks of the host, as
+    its domain (:func:`jaxnav.models.uhf_read_model.read_model_in_domain`): the value checks of the host, as
     ``jnp``. The reads are not part of it: an unusable read is dropped and counted."""
     del config, reads
     return (
@@ -308,24 +308,8 @@ def kernel(
     pose = motion.increment_sample(k_move, p[:, :4], control, params.odometry_sd, config.odometry_frame)
     offsets = weights.wrap_angle(p[:, 4:] + params.offset_sd * rng.normal(k_off, (m, g), p.dtype))
     moved = jnp.concatenate([pose, offsets], axis=-1)
-    u = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
-    num_ignored = u.num_ignored
-    reads = AnchorReads(u.rssi, u.phase, u.wavelength, u.mask)
-    ll = U.read_log_likelihood(
-        moved[:, None, :4],
-        params.anchors[None, :, :],
-        moved[:, 4:],
-        reads.rssi[None, :],
-        reads.phase[None, :],
-        reads.wavelength[None, :],
-        reads.mask[None, :],
-        params.channel,
-        params.gamma,
-        params.phase_sigma,
-        use_rssi=config.weighting in ("combined", "rssi"),
-        use_phase=config.weighting in ("combined", "phase"),
-        softness=config.antenna_softness,
-    )
+    reads, num_ignored = US.usable_anchor_reads(reads)
+    ll = US.anchor_reads_log_likelihood(moved, reads, params, config.weighting, config.antenna_softness)
     moved, ll = keep_finite(p, moved, ll)
     norm = weights.normalize(state.log_weights + ll)
     any_read = jnp.any(reads.mask)
@@ -338,10 +322,6 @@ def kernel(
         num_ignored=num_ignored,
     )
     return RFIDAnchorState(res.particles, res.log_weights), info
-
-
-def _as_reads(r: AnchorReads) -> AnchorReads:
-    return AnchorReads(*(jnp.asarray(x, jnp.float32) for x in r[:3]), jnp.asarray(r.mask, bool))
 
 
 def _validate_state(config: RFIDAnchorConfig, params: RFIDAnchorParams, state: RFIDAnchorState) -> None:
@@ -358,28 +338,11 @@ def _validate_inputs(
     t = (None,) * lead
     check_shape("controls" if lead else "control", controls, t + (4,))
     check_magnitude("controls" if lead else "control", controls)
-    if not isinstance(reads, AnchorReads):
-        raise ValueError(f"reads must be an AnchorReads, got {type(reads).__name__}")
-    shape = np.shape(controls)[:lead] + (g,)
-    for name in AnchorReads._fields:
-        check_real(f"reads.{name}", getattr(reads, name))
-        if np.shape(getattr(reads, name)) != shape:
-            raise ValueError(
-                f"reads.{name} must have shape {shape} (one slot per anchor), got {np.shape(getattr(reads, name))}"
-            )
-    if is_concrete(reads):
-        mask = np.asarray(reads.mask, bool)
-        for name in ("rssi", "phase", "wavelength"):
-            if not np.all(np.isfinite(np.asarray(getattr(reads, name)))):
-                raise ValueError(f"reads.{name} must be finite everywhere (fill masked slots with any finite value)")
-        if mask.any():
-            U.validate_rssi(np.asarray(reads.rssi)[mask], name="reads.rssi", max_w=U.MAX_RSSI_W)
-            U.validate_phase(np.asarray(reads.phase)[mask], name="reads.phase")
-            check_positive("reads.wavelength", np.asarray(reads.wavelength)[mask])
+    US.check_anchor_reads(reads, np.shape(controls)[:lead], g)
 
 
 def _prepare(config: RFIDAnchorConfig, controls: Any, reads: AnchorReads) -> tuple[jax.Array, AnchorReads]:
-    return jnp.asarray(controls, jnp.float32), _as_reads(reads)
+    return jnp.asarray(controls, jnp.float32), US.as_anchor_reads(reads)
 
 
 step, run = filter_api.build(
@@ -396,8 +359,8 @@ step, run = filter_api.build(
         valid_inputs=_inputs_in_domain,
         prepare=_prepare,
         step_doc="""One step of [A] Alg. 8 (lines 10–26): move by ``control = dX_t [4]``, weight by the anchors
-        read (``reads`` an :class:`AnchorReads` of ``[G]``).""",
-        run_doc="""[A] Alg. 8 over ``T`` steps: ``controls [T, 4]``, ``reads`` an :class:`AnchorReads` of ``[T, G]``,
+        read (``reads`` an :class:`~jaxnav.models.uhf_sensor.AnchorReads` of ``[G]``).""",
+        run_doc="""[A] Alg. 8 over ``T`` steps: ``controls [T, 4]``, ``reads`` an :class:`~jaxnav.models.uhf_sensor.AnchorReads` of ``[T, G]``,
         ``state`` from :func:`init`.""",
     ),
     __name__,

@@ -4,7 +4,7 @@
 
 A reader on a robot whose path is known reads a tag that does not move. Each
 read gives an RSSI ``y`` (W) and a phase ``φ`` (rad) at a known reader pose
-(:class:`jaxnav.models.uhf_rfid.UHFReads`). The particles are hypotheses
+(:class:`jaxnav.models.uhf_reads.UHFReads`). The particles are hypotheses
 ``X = (x, y, z, θ_off)`` of the tag's position (m) and of the constant phase
 offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
 
@@ -12,10 +12,10 @@ offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
   uniform on the circle, equal weights;
 * lines 9–16, :func:`step`: every valid read ``j`` of the step multiplies the
   weight by ``W_RSSI`` (line 12, the scaled squared-Gamma density of [A]
-  §4.3.1, :func:`jaxnav.models.uhf_rfid.log_w_rssi`, with ``a`` from the
-  two-ray model at the particle, :func:`~jaxnav.models.uhf_rfid.power_scale`)
+  §4.3.1, :func:`jaxnav.models.uhf_read_model.log_w_rssi`, with ``a`` from the
+  two-ray model at the particle, :func:`~jaxnav.models.uhf_channel.power_scale`)
   and by ``W_PHASE`` (line 13, ``N(Δ; 0, σ²)`` on the distance metric of
-  [A] §4.3.2, :func:`~jaxnav.models.uhf_rfid.log_w_phase`), in log form.
+  [A] §4.3.2, :func:`~jaxnav.models.uhf_read_model.log_w_phase`), in log form.
   ``config.weighting`` keeps one of them (``"rssi"``, ``"phase"``) or both
   (``"combined"``): the three curves of [A] Figs. 5.5–5.6;
 * lines 17–19: normalise; ESS; the estimate is the weighted mean (the
@@ -25,7 +25,7 @@ offset of its cables and antenna (rad). [A] Alg. 6, with where each line lives:
   static target would stay duplicates forever). [A] fits it to the resampled
   particles; we fit it to the weighted set, whose moments those estimate
   (no ancestors drawn: the same Gaussian without the resampling's noise;
-  :func:`jaxnav.core.resampling.gaussian_draw`).
+  :func:`jaxnav.core.refresh.gaussian_draw`).
   [A] asks for a threshold "significantly lower" than ``M/2`` because the
   Gaussian is unimodal while the early posterior is multimodal (a phase read
   is consistent with spheres ``λ/2`` apart); ours is 0.1 (our choice). The
@@ -40,6 +40,11 @@ Several tags: :func:`run_tags` applies ``vmap`` to :func:`run` over a leading ta
 (``[A]``: "localization of more than one tags simply requires the execution
 inside a loop"; here it is one vectorised call, with each tag resampling only
 when it must).
+
+The sensor. The reads' likelihood is :func:`jaxnav.models.uhf_sensor.tag_reads_sensor`
+(``config.sensor``), the seam every jaxnav particle filter weighs through. The filter is not MCL
+with that sensor: its particles are hypotheses of a static tag ``[M, 4]``, not robot poses, so
+there is no motion model and no control, and its Gaussian refresh clipped to the box is its own.
 
 Interface (shared by every jaxnav filter)::
 
@@ -80,6 +85,8 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.models import uhf_rfid as U
+from jaxnav.models import uhf_sensor as US
+from jaxnav.models.sensor import ParticleSensor
 
 __all__ = [
     "WEIGHTINGS",
@@ -100,8 +107,8 @@ __all__ = [
     "run_tags_jitted",
 ]
 
-WEIGHTINGS = ("combined", "rssi", "phase")
-"""Which weights Alg. 6 lines 12–14 multiply in, by name.
+WEIGHTINGS = US.WEIGHTINGS
+"""Which weights Alg. 6 lines 12–14 multiply in, by name (:data:`jaxnav.models.uhf_sensor.WEIGHTINGS`).
 
 ``"combined"`` multiplies both (the proposal of [A]), ``"rssi"`` the RSSI weight only and ``"phase"``
 the phase weight only."""
@@ -122,12 +129,12 @@ class RFIDTagConfig:
         refresh: how the resampled set is redrawn. ``True`` / ``"gaussian"``:
             from its Gaussian ([A] §4.3.3, Alg. 6 line 22). ``"kernel"``: every
             particle moves by a kernel of covariance ``h² Σ`` (the regularised
-            particle filter, :func:`jaxnav.core.resampling.kernel_refresh`; ours,
+            particle filter, :func:`jaxnav.core.refresh.kernel_refresh`; ours,
             not [A]'s), which keeps the early posterior's modes; the
             ``uhf-refresh`` experiment compares the two. ``False`` keeps plain
             systematic resampling.
         antenna_softness: optional logistic relaxation (rad) of the antenna
-            pattern's steps (:func:`jaxnav.models.uhf_rfid.antenna_gain`), for
+            pattern's steps (:func:`jaxnav.models.uhf_antenna.antenna_gain`), for
             gradients with respect to positions; None is [A]'s stepped model.
     """
 
@@ -151,13 +158,19 @@ class RFIDTagConfig:
         if self.antenna_softness is not None:
             check_positive("antenna_softness", self.antenna_softness)
 
+    @property
+    def sensor(self) -> ParticleSensor:
+        """The sensor this filter weighs with, :func:`jaxnav.models.uhf_sensor.tag_reads_sensor` of
+        ``weighting`` and ``antenna_softness``."""
+        return US.tag_reads_sensor(self.weighting, self.antenna_softness)
+
 
 class RFIDTagParams(NamedTuple):
     """Differentiable parameters (use :func:`default_params`).
 
     Attributes:
-        channel: :class:`~jaxnav.models.uhf_rfid.ChannelParams` (power model and antenna).
-        gamma: :class:`~jaxnav.models.uhf_rfid.GammaParams` ``(k, θ)`` of ``|h|²``.
+        channel: :class:`~jaxnav.models.uhf_channel.ChannelParams` (power model and antenna).
+        gamma: :class:`~jaxnav.models.uhf_channel.GammaParams` ``(k, θ)`` of ``|h|²``.
         phase_sigma: ``σ_phase`` (m) of ``W_PHASE``; [A]: 0.05λ–0.2λ.
         box_lo, box_hi: ``[3]`` corners of the search box (m).
         tag_height: the known tag height ``z`` (m) when ``dims = 2``.
@@ -191,7 +204,7 @@ class RFIDTagInfo(PFInfo):
         degenerate: bool, every particle had zero likelihood; the weights were reset.
         num_reads: int32, valid reads used.
         num_ignored: int32, valid reads dropped because a value was not finite or out of range
-            (:func:`jaxnav.models.uhf_rfid.usable_reads`; the host refuses them, so only inside
+            (:func:`jaxnav.models.uhf_reads.usable_reads`; the host refuses them, so only inside
             a caller's ``jit``).
         invalid_inputs: bool, the step's parameters were outside the models' domain (a zero or negative
             power, gain, ``k``, ``θ`` or ``σ_phase``, an empty search box, a value that is not
@@ -214,7 +227,7 @@ def default_params(
 ) -> RFIDTagParams:
     """Parameters with [A] §5.2's 2 × 3 × 2 m search box by default.
 
-    ``phase_sigma`` defaults to ``0.1 λ`` (:data:`~jaxnav.models.uhf_rfid.DEFAULT_PHASE_SIGMA_FRACTION`
+    ``phase_sigma`` defaults to ``0.1 λ`` (:data:`~jaxnav.models.uhf_read_model.DEFAULT_PHASE_SIGMA_FRACTION`
     of the channel's wavelength); ``tag_height`` (m) is used only in 2D. Validated.
     """
     if phase_sigma is None:
@@ -276,31 +289,10 @@ def _init(key, config, params):
 
 
 def log_likelihoods(config: RFIDTagConfig, params: RFIDTagParams, particles: jax.Array, reads: U.UHFReads) -> jax.Array:
-    """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14.
-
-    One :func:`~jaxnav.models.uhf_rfid.read_log_terms` call per read slot (``J`` is static and
-    small), each a flat loop over the particles with the slot's scalars: see that function for
-    why this is faster inside a scan than one ``[M, J]`` broadcast.
-    """
-    xyz, offset = particles[:, :3], particles[:, _OFFSET]
-    total = jnp.zeros(particles.shape[:1], particles.dtype)
-    for j in range(reads.mask.shape[-1]):
-        total = total + U.read_log_terms(
-            reads.reader[j],
-            xyz,
-            offset,
-            reads.rssi[j],
-            reads.phase[j],
-            reads.wavelength[j],
-            reads.mask[j],
-            params.channel,
-            params.gamma,
-            params.phase_sigma,
-            use_rssi=config.weighting in ("combined", "rssi"),
-            use_phase=config.weighting in ("combined", "phase"),
-            softness=config.antenna_softness,
-        )
-    return total
+    """``[M]`` Σ over the valid reads of ``log W_RSSI + log W_PHASE`` (or one of them), Alg. 6 lines 11–14:
+    :func:`jaxnav.models.uhf_sensor.tag_reads_log_likelihood` with the configured weighting (``reads``
+    usable, :func:`jaxnav.models.uhf_sensor.usable_tag_reads`)."""
+    return US.tag_reads_log_likelihood(particles, reads, params, config.weighting, config.antenna_softness)
 
 
 class Weighed(NamedTuple):
@@ -313,10 +305,7 @@ class Weighed(NamedTuple):
 
 def weigh(state: RFIDTagState, config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> Weighed:
     """[A] Alg. 6 lines 9–19: weight the particles by the step's reads, estimate, and decide whether to resample."""
-    u = U.usable_reads(reads.rssi, reads.phase, reads.wavelength, reads.mask)
-    num_ignored = u.num_ignored
-    reader = jnp.where(u.mask[..., None] & jnp.isfinite(reads.reader), reads.reader, 0.0)
-    reads = U.UHFReads(reader, u.rssi, u.phase, u.wavelength, u.mask)
+    reads, num_ignored = US.usable_tag_reads(reads)
     ll = log_likelihoods(config, params, state.particles, reads)
     norm = weights.normalize(state.log_weights + ll)
     probs = jnp.exp(norm.log_weights)
@@ -371,7 +360,7 @@ def resample(
 
 
 def _inputs_in_domain(config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads) -> jax.Array:
-    """``bool[]``, traceable: the read model in its domain (:func:`jaxnav.models.uhf_rfid.read_model_in_domain`)
+    """``bool[]``, traceable: the read model in its domain (:func:`jaxnav.models.uhf_read_model.read_model_in_domain`)
     and a search box of positive volume above the ground: the value checks of the host, as ``jnp``.
     The reads are not part of it: an unusable read is dropped and counted."""
     del config, reads
@@ -393,21 +382,13 @@ def kernel(
     return RFIDTagState(particles, log_weights), w.info
 
 
-def _as_reads(reads: U.UHFReads) -> U.UHFReads:
-    return U.UHFReads(*(jnp.asarray(x, jnp.float32) for x in reads[:4]), jnp.asarray(reads.mask, bool))
-
-
 def _validate_state(config: RFIDTagConfig, params: Any, state: RFIDTagState) -> None:
     check_shape("state.particles", state.particles, (config.num_particles, 4))
     check_shape("state.log_weights", state.log_weights, (config.num_particles,))
 
 
 def _validate_inputs(config: RFIDTagConfig, params: RFIDTagParams, reads: U.UHFReads, time_axis: bool) -> None:
-    U.validate_reads(reads)
-    lead = 1 if time_axis else 0
-    if len(np.shape(reads.mask)) != lead + 1:
-        axes = ("T, " * lead) + "J"
-        raise ValueError(f"reads must have shape [{axes}], got mask shape {np.shape(reads.mask)}")
+    US.check_tag_reads(reads, time_axis)
 
 
 step, run = filter_api.build(
@@ -421,9 +402,9 @@ step, run = filter_api.build(
         check_state=_validate_state,
         check_inputs=_validate_inputs,
         valid_inputs=_inputs_in_domain,
-        prepare=lambda config, reads: (_as_reads(reads),),
+        prepare=lambda config, reads: (US.as_tag_reads(reads),),
         step_doc="""One step of [A] Alg. 6 (lines 9–26) on the ``J`` read slots of ``reads`` (a
-        :class:`~jaxnav.models.uhf_rfid.UHFReads` with mask shape ``[J]``); the reads are cast to float32.""",
+        :class:`~jaxnav.models.uhf_reads.UHFReads` with mask shape ``[J]``); the reads are cast to float32.""",
         run_doc="""[A] Alg. 6 over ``T`` steps: ``reads`` with mask shape ``[T, J]``, ``state`` from :func:`init`;
         ``trace.estimate`` is ``[T, 4]``.""",
     ),
@@ -508,4 +489,4 @@ def run_tags(
         keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(key, i), 2**31 - 1))(jnp.arange(g))
         initial_states = jax.vmap(lambda k: _init(k, config, params))(keys)
     check_shape("initial_states.particles", initial_states.particles, (g, config.num_particles, 4))
-    return run_tags_jitted(key, config, params, _as_reads(reads), initial_states)
+    return run_tags_jitted(key, config, params, US.as_tag_reads(reads), initial_states)

@@ -30,11 +30,10 @@ import jax
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_choice
 from jaxnav.localization import ekf
 from jaxnav.localization.ekf import KalmanInfo, KalmanParams, KalmanState
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS
+from jaxnav.models.motion import check_motion_model
 
 __all__ = ["UKFConfig", "KalmanParams", "KalmanState", "KalmanInfo", "init", "kernel", "step", "run"]
 
@@ -57,7 +56,7 @@ class UKFConfig:
     kappa: float = 0.0
 
     def __post_init__(self) -> None:
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
         if self.gate_probability is not None:
             kalman.chi2_gate(self.gate_probability, 2)  # raises a ValueError naming the problem
         if not self.alpha > 0:

@@ -39,6 +39,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
+from jaxnav.models.sensor import ParticleSensor
 
 __all__ = [
     "check_filter_inputs",
@@ -56,6 +57,7 @@ __all__ = [
     "usable_measurements",
     "noise_in_domain",
     "filter_inputs_in_domain",
+    "RANGE_BEARING_SENSOR",
 ]
 
 
@@ -224,10 +226,15 @@ class LandmarkMapParams(NamedTuple):
     landmarks: jax.Array
 
 
-def validate_map_params(motion_model: str, params: Any) -> None:
+def validate_map_params(motion_model: str | motion.MotionModel, params: Any) -> None:
     """Host-side check of the fields ``motion``, ``sensor`` and ``landmarks`` of ``params``: noise of
     ``motion_model``, a range-bearing noise, and at least one finite landmark ``[M, 2]`` (m)."""
     motion.validate_noise(motion_model, params.motion)
+    _check_sensor_params(params)
+
+
+def _check_sensor_params(params: Any) -> None:
+    """The fields ``sensor`` (a range-bearing noise) and ``landmarks`` (at least one finite ``[M, 2]``, m)."""
     validate_noise(params.sensor)
     check_shape("params.landmarks", params.landmarks, (None, 2))
     if np.shape(params.landmarks)[0] < 1:
@@ -277,3 +284,45 @@ def validate_steps(
             f"controls and observations must have the same number of steps, got "
             f"{np.shape(controls)[0]} and {np.shape(obs.ids)[0]}"
         )
+
+
+# --------------------------------------------------------------------------- the particle-sensor instance
+
+
+def _map_log_likelihood(poses: jax.Array, obs: RangeBearingObs, params: Any) -> jax.Array:
+    """``log p(z_t | x)`` for ``poses [N, 3]`` from the map ``params.landmarks`` and noise ``params.sensor``
+    (:func:`lookup`, then :func:`log_likelihood`)."""
+    positions, valid, _ = lookup(params.landmarks, obs)
+    return log_likelihood(poses, positions, obs.z, valid, params.sensor)
+
+
+def _map_num_ignored(obs: RangeBearingObs, params: Any) -> jax.Array:
+    """The third output of :func:`lookup` without its gather of the positions."""
+    mask = obs.mask.astype(bool)
+    usable = (obs.ids >= 0) & (obs.ids < params.landmarks.shape[0]) & usable_measurements(obs.z)
+    return jnp.sum(mask & ~usable).astype(jnp.int32)
+
+
+def _map_check_observations(obs: RangeBearingObs, time_axis: bool, params: Any) -> None:
+    if not isinstance(obs, RangeBearingObs):
+        raise ValueError(f"observations must be a RangeBearingObs, got {type(obs).__name__}")
+    validate_observations(obs, time_axis, np.shape(params.landmarks)[0])
+
+
+def _map_params_in_domain(params: Any) -> jax.Array:
+    return noise_in_domain(params.sensor)
+
+
+RANGE_BEARING_SENSOR = ParticleSensor(
+    "range_bearing",
+    _map_log_likelihood,
+    check_params=_check_sensor_params,
+    check_observations=_map_check_observations,
+    params_in_domain=_map_params_in_domain,
+    num_ignored=_map_num_ignored,
+)
+"""Range-bearing observations of a known landmark map as a :class:`~jaxnav.models.sensor.ParticleSensor`,
+the default sensor of MCL and its variants: observations :class:`RangeBearingObs`, parameters with the
+fields ``sensor`` (:class:`RangeBearingNoise`) and ``landmarks`` (``[M, 2]``, m), as in
+:class:`LandmarkMapParams`. A slot whose id is outside the map, or whose ``z`` is unusable, is dropped
+and counted (:func:`lookup`)."""

@@ -66,6 +66,12 @@ __all__ = [
     "OdometryNoise",
     "OmniNoise",
     "MotionModel",
+    "VELOCITY",
+    "ODOMETRY",
+    "OMNI",
+    "OMNI_BODY",
+    "check_motion_model",
+    "model_name",
     "velocity_mean",
     "velocity_sample",
     "odometry_mean",
@@ -441,31 +447,58 @@ def _check_noise_values(**fields: object) -> None:
         check_magnitude(f"motion noise {field}", value)
 
 
-MODELS: dict[str, MotionModel] = {
-    "velocity": MotionModel(
-        "velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov, 2
-    ),
-    "odometry": MotionModel(
-        "odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov
-    ),
-    "omni": MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov, 3),
-    "omni_body": MotionModel(
-        "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov, 3
-    ),
-}
-"""The motion models by name (``"velocity"``, ``"odometry"``, ``"omni"``, ``"omni_body"``; table in the
-module docstring)."""
+VELOCITY = MotionModel(
+    "velocity", 3, velocity_mean, velocity_sample, VelocityNoise, _validate_velocity, velocity_process_cov, 2
+)
+"""The velocity (unicycle) model of Thrun et al. Tab. 5.3, whose control is ``(v [m/s], ω [rad/s], Δt [s])``."""
+ODOMETRY = MotionModel(
+    "odometry", 6, odometry_mean, odometry_sample, OdometryNoise, _validate_odometry, odometry_process_cov
+)
+"""The odometry model of Thrun et al. Tab. 5.6, whose control is two odometry poses ``(x̄, ȳ, θ̄, x̄', ȳ', θ̄')``."""
+OMNI = MotionModel("omni", 4, omni_mean, omni_sample, OmniNoise, _validate_omni, omni_process_cov, 3)
+"""The omnidirectional model of [W] eq. 3.6, whose control is ``(v_x, v_y, ω, Δt)`` in the world frame."""
+OMNI_BODY = MotionModel(
+    "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov, 3
+)
+"""The omnidirectional model whose control ``(v_x, v_y, ω, Δt)`` has its velocity in the robot frame."""
+
+MODELS: dict[str, MotionModel] = {m.name: m for m in (VELOCITY, ODOMETRY, OMNI, OMNI_BODY)}
+"""The built-in motion models by name (``"velocity"``, ``"odometry"``, ``"omni"``, ``"omni_body"``; table in
+the module docstring). A filter's ``motion_model`` takes a name or a :class:`MotionModel`, built-in or
+a user's own."""
 
 
-def get_motion_model(name: str) -> MotionModel:
-    """The motion model called ``name`` (one of :data:`MODELS`)."""
+def get_motion_model(model: str | MotionModel) -> MotionModel:
+    """The motion model ``model``: a :class:`MotionModel` as it is, or the one of :data:`MODELS` by name."""
+    if isinstance(model, MotionModel):
+        return model
     try:
-        return MODELS[name]
-    except KeyError:
-        raise ValueError(f"motion model {name!r} is unknown; choose one of {sorted(MODELS)}") from None
+        return MODELS[model]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"motion model {model!r} is unknown; choose one of {sorted(MODELS)} or pass a "
+            "jaxnav.models.motion.MotionModel"
+        ) from None
 
 
-def validate_noise(name: str, params: object, argument: str = "params.motion") -> None:
+def check_motion_model(name: str, model: object) -> None:
+    """Configuration check: ``model`` is a name in :data:`MODELS` or a :class:`MotionModel` whose
+    functions are callable; raises ``ValueError`` naming the field ``name``."""
+    if isinstance(model, MotionModel):
+        for field in ("mean", "sample", "validate", "process_cov"):
+            if not callable(getattr(model, field)):
+                raise ValueError(f"{name}.{field} of motion model {model.name!r} must be callable")
+        return
+    if not isinstance(model, str) or model not in MODELS:
+        raise ValueError(f"{name} must be one of {sorted(MODELS)} or a jaxnav.models.motion.MotionModel, got {model!r}")
+
+
+def model_name(model: str | MotionModel) -> str:
+    """The name of ``model`` (a name or a :class:`MotionModel`), for messages."""
+    return model.name if isinstance(model, MotionModel) else model
+
+
+def validate_noise(name: str | MotionModel, params: object, argument: str = "params.motion") -> None:
     """Host-side check that ``params`` is the noise type of motion model ``name`` and is valid.
 
     Raises ``ValueError`` naming ``argument``, the model and the expected type.
@@ -473,12 +506,13 @@ def validate_noise(name: str, params: object, argument: str = "params.motion") -
     model = get_motion_model(name)
     if not isinstance(params, model.noise_type):
         raise ValueError(
-            f"{argument} must be a {model.noise_type.__name__} for motion model {name!r}, got {type(params).__name__}"
+            f"{argument} must be a {model.noise_type.__name__} for motion model {model.name!r}, "
+            f"got {type(params).__name__}"
         )
     model.validate(params)
 
 
-def noise_in_domain(name: str, params: object) -> jax.Array:
+def noise_in_domain(name: str | MotionModel, params: object) -> jax.Array:
     """``bool[]``, traceable: every noise level of motion model ``name``'s ``params`` (α's, σ's) is
     finite and in ``[0, MAX_MAGNITUDE]``, the value checks of :func:`validate_noise` as a ``jnp``
     expression for use inside a ``jit`` (a negative α makes ``√(α₁v² + α₂ω²)`` NaN)."""
@@ -486,7 +520,7 @@ def noise_in_domain(name: str, params: object) -> jax.Array:
     return jnp.all(jnp.stack([all_nonnegative(leaf) for leaf in jax.tree_util.tree_leaves(params)]))
 
 
-def controls_in_domain(controls: jax.Array, model: str) -> jax.Array:
+def controls_in_domain(controls: jax.Array, model: str | MotionModel) -> jax.Array:
     """``bool[]``, traceable: ``controls [..., dim]`` of motion model ``model`` are finite, at most
     :data:`~jaxnav.core.validation.MAX_MAGNITUDE` in magnitude, with ``Δt ≥ 0`` s where the control
     carries a time step: the value checks of :func:`validate_controls` as a ``jnp`` expression."""
@@ -497,7 +531,7 @@ def controls_in_domain(controls: jax.Array, model: str) -> jax.Array:
     return ok
 
 
-def validate_controls(name: str, controls: object, model: str, time_axis: bool) -> object:
+def validate_controls(name: str, controls: object, model: str | MotionModel, time_axis: bool) -> object:
     """Host-side check of controls of motion model ``model`` (``[T, dim]`` with ``time_axis``, else
     ``[dim]``), named ``name``: the model's dimension, finite values of at most
     :data:`~jaxnav.core.validation.MAX_MAGNITUDE` (m, s, rad), and a time step ``Δt ≥ 0`` s where
@@ -513,7 +547,7 @@ def validate_controls(name: str, controls: object, model: str, time_axis: bool) 
         if (dt < 0).any():  # the method: np.any's dispatch costs more than the test on a few numbers
             where = first_index(dt < 0) + (spec.dt_index,)
             raise ValueError(
-                f"{name} holds a negative time step Δt (column {spec.dt_index} of a {model!r} control), the "
+                f"{name} holds a negative time step Δt (column {spec.dt_index} of a {spec.name!r} control), the "
                 f"first {float(np.asarray(controls)[where]):g} s at index {where}"
             )
     return controls

@@ -16,7 +16,7 @@ error ``≲ 1/(60 k³)`` (2 % at ``k = 1``, 1.3·10⁻⁴ at ``k = 5``);
 ``θ̂ k̂ = θ* k* = ū`` exactly. :func:`closed_form_error_bound` returns this
 bound. :func:`estimate_gamma_ml` maximises the exact likelihood with optax
 L-BFGS over ``(log k, log θ)``, started from the closed form.
-:func:`estimate_gamma` returns :data:`~jaxnav.models.uhf_rfid.DEFAULT_GAMMA` until ``min_reads`` valid
+:func:`estimate_gamma` returns :data:`~jaxnav.models.uhf_channel.DEFAULT_GAMMA` until ``min_reads`` valid
 reads exist ([A] §4.3.1, item 2: "a fixed predetermined value has to be
 used, until their number exceeds a certain limit"). Missing reads are
 masked (``mask`` False), never zeros; masked entries may hold any value.
@@ -55,14 +55,14 @@ __all__ = [
 ]
 
 DEFAULT_MIN_READS = 30
-"""Valid anchor reads needed before (k, θ) is estimated instead of :data:`~jaxnav.models.uhf_rfid.DEFAULT_GAMMA`."""
+"""Valid anchor reads needed before (k, θ) is estimated instead of :data:`~jaxnav.models.uhf_channel.DEFAULT_GAMMA`."""
 
 
 class GammaFit(NamedTuple):
     """Result of :func:`estimate_gamma`.
 
     Attributes:
-        params: the :class:`~jaxnav.models.uhf_rfid.GammaParams` used (estimate or default).
+        params: the :class:`~jaxnav.models.uhf_channel.GammaParams` used (estimate or default).
         n_valid: number of valid (unmasked) reads.
         used_default: True when ``params`` is the default (too few reads, or a
             degenerate sample such as identical reads).
@@ -142,7 +142,7 @@ def estimate_gamma_closed_form(reads: Any, a: Any, mask: Any = None) -> GammaPar
 
     Args:
         reads: ``[N]`` RSSI of an anchor tag (W), > 0 where valid.
-        a: scalar or ``[N]``: the known ``a_i`` of each read (W), :func:`~jaxnav.models.uhf_rfid.power_scale`
+        a: scalar or ``[N]``: the known ``a_i`` of each read (W), :func:`~jaxnav.models.uhf_channel.power_scale`
             at the anchor's position.
         mask: optional ``[N]`` bool, True for valid reads.
 

@@ -4,7 +4,7 @@
 
 Two receivers on the robot top (one per side, robot-frame ``offsets``,
 default (0, ±0.10) m; [W] Fig. 5.4 gives no distances) look up at the
-ceiling emitters of an :class:`~jaxnav.models.ir.EmitterLayout`. Every LED
+ceiling emitters of an :class:`~jaxnav.models.ir_layouts.EmitterLayout`. Every LED
 is on-off keyed with a square wave of duty ``D`` (default ½) at its code's
 frequency ([W] Table 5.1); a unique-ID array drives one LED per code of its
 set, all co-located, each with its own random phase.
@@ -68,7 +68,7 @@ grid (``jnp.fft.irfft``), so there is no aliasing.
 Harmonics. A square wave has odd harmonics of amplitude ``1/h`` (and even
 ones for ``D ≠ ½``). None ever lands on a code bin: in units of 50 Hz the
 codes are 2, 3, 5, 7, 11, 13, 17, 19, 23 — 2 and odd primes — so
-``h·c = c'`` forces ``h = 1`` (:func:`jaxnav.models.ir.harmonic_collisions`
+``h·c = c'`` forces ``h = 1`` (:func:`jaxnav.models.ir_codebook.harmonic_collisions`
 is empty; e.g. 3 × 150 = 450, 3 × 350 = 1050, 5 × 250 = 1250 Hz are no
 codes). The decoder therefore reads the nine fundamental bins and needs no
 harmonic subtraction. It relies on no harmonic, so the sampling condition
@@ -99,7 +99,7 @@ the threshold, and ½). The window is a **valid detection** iff
 
 Otherwise ``valid = False`` and ``mask = 0``: no detection, never a guess.
 Two emitters in range at once give a set of codes that is no layout ID for
-the layouts built by :mod:`jaxnav.models.ir` (its "Decodability" rules), so
+the layouts built by :mod:`jaxnav.models.ir_layouts` (its "Decodability" rules), so
 rule 4 drops it. The reported voltage is ``V`` of the mean ``â`` over the
 present codes.
 

@@ -141,7 +141,7 @@ def unique11_layout(pitch: float = 0.80, origin: Sequence[float] = (0.4, 0.4)) -
     same interval between the emitters as the proposed system"), every
     emitter a unique pair of codes ([W] lists none): in emitter order, the
     first unused pair in canonical order sharing no code with an emitter
-    closer than :data:`jaxnav.models.ir.CONFLICT_RADIUS` — ``12 13 14 15 16 17 18 19`` on the 8
+    closer than :data:`jaxnav.models.ir_layouts.CONFLICT_RADIUS` — ``12 13 14 15 16 17 18 19`` on the 8
     lattice points, ``45 25 23`` at the centres.
     """
     base = experiment_layout(pitch=pitch, origin=origin)

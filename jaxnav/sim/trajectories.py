@@ -1,4 +1,4 @@
-"""Commanded trajectories shared by the simulators: control sequences and their integration.
+"""Trajectories shared by the simulators: control sequences, their integration, and UHF reader paths.
 
 * :func:`loop_controls`: constant velocity-model controls ``(v, ω, Δt)``, a circle (the landmark
   world of :mod:`jaxnav.sim.landmark_world`, the demo and the classical filters' tests).
@@ -7,6 +7,23 @@
 * :func:`random_controls`: a random trajectory at 0.1–0.4 m/s inside a box ([W] §3.4.2).
 * :func:`integrate_controls`: the poses that a control sequence drives exactly (the ground truth
   of the tag-carpet simulator).
+* :func:`line_path`, :func:`lawnmower_path`: poses ``(x, y, z, ψ)`` of a UHF-RFID reader antenna
+  (the paths of :mod:`jaxnav.sim.uhf_reader` and of the UHF experiments).
+
+**Paths of a UHF reader**
+
+:func:`line_path` is the straight pass of [A] Fig. 5.2 (distance to the tag
+first decreasing, then increasing). One straight line cannot localise a tag
+in 3D: every distance to points of a line is unchanged by a rotation about
+the line, so a circle of positions fits (the antenna pattern breaks this only
+coarsely). Parallel passes whose cross-section offsets ``(y, z)`` are
+**not collinear** (:func:`lawnmower_path` with ≥ 2 depths and ≥ 2 heights)
+remove it: the range profile along each pass gives ``x`` and the
+perpendicular distance to that pass, and three perpendicular distances to
+non-collinear points of the ``(y, z)`` plane fix ``(y, z)`` (two leave a
+mirror image). With an unknown phase offset the phase gives range
+*differences* along each pass, whose curvature still fixes the perpendicular
+distance, so the argument holds for phase-only localization too.
 
 Units are SI (m, rad, s).
 """
@@ -15,6 +32,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -22,11 +40,22 @@ import numpy as np
 
 from jaxnav.core import rng
 from jaxnav.core.filter import check_key
-from jaxnav.core.validation import check_nonnegative_int
+from jaxnav.core.validation import check_finite, check_nonnegative_int, check_positive_int, check_shape
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models.motion import get_motion_model, omni_mean
 
-__all__ = ["loop_controls", "rectangle_controls", "random_controls", "integrate_controls"]
+__all__ = [
+    "loop_controls",
+    "rectangle_controls",
+    "random_controls",
+    "integrate_controls",
+    "DEFAULT_READER_HEIGHT",
+    "line_path",
+    "lawnmower_path",
+]
+
+DEFAULT_READER_HEIGHT = 1.0
+"""Reader antenna height (m) when a path is given in 2D (ours)."""
 
 
 def loop_controls(num_steps: int, speed: float = 0.5, turn_rate: float = 0.15, dt: float = 0.25) -> jax.Array:
@@ -212,3 +241,141 @@ def integrate_controls(start_pose: jax.Array, controls: jax.Array, motion_model:
 
     _, poses = jax.lax.scan(body, jnp.asarray(start_pose, controls.dtype), controls)
     return poses
+
+
+# --------------------------------------------------------------------------------------
+# Paths of a UHF reader (host-side NumPy)
+# --------------------------------------------------------------------------------------
+
+
+def _point3(name: str, p: Any, height: float | None) -> np.ndarray:
+    v = np.asarray(p, np.float64)
+    if v.shape not in ((2,), (3,)):
+        raise ValueError(f"{name} must have shape (2,) or (3,), got {v.shape}")
+    check_finite(name, v)
+    if v.shape == (2,):
+        v = np.append(v, DEFAULT_READER_HEIGHT if height is None else float(height))
+    elif height is not None:
+        v = v.copy()
+        v[2] = float(height)
+    if v[2] < 0:
+        raise ValueError(f"{name} z (height above the ground z = 0) must be ≥ 0, got {v[2]}")
+    return v
+
+
+def line_path(
+    start: Any,
+    end: Any,
+    num_steps: int,
+    heading: float | None = None,
+    height: float | None = None,
+    facing: Any = None,
+) -> np.ndarray:
+    """Reader poses ``[T, 4]`` ``(x, y, z, ψ)`` evenly spaced on the segment ``start → end`` ([A] Fig. 5.2).
+
+    Args:
+        start, end: ``[2]`` (x, y) or ``[3]`` (x, y, z) positions (m).
+        num_steps: ``T ≥ 2`` poses, both ends included.
+        heading: constant boresight yaw ``ψ`` (rad). Default: perpendicular to
+            the motion (a side-looking antenna), toward the side of ``facing``
+            if given, else to the left of the direction of travel
+            (``atan2(Δy, Δx) + π/2``).
+        height: reader height (m); overrides the z of 3D points; default
+            :data:`DEFAULT_READER_HEIGHT` for 2D points.
+        facing: optional ``[2]``/``[3]`` point (e.g. the tag) the antenna should face.
+
+    Returns float32 ``[T, 4]``.
+    """
+    num_steps = check_positive_int("num_steps", num_steps)
+    if num_steps < 2:
+        raise ValueError(f"num_steps must be ≥ 2 (a line has two ends), got {num_steps}")
+    a = _point3("start", start, height)
+    b = _point3("end", end, height)
+    d = b - a
+    if np.hypot(d[0], d[1]) <= 1e-12 and heading is None:
+        raise ValueError("start and end have the same (x, y): give an explicit heading")
+    if heading is None:
+        psi = math.atan2(d[1], d[0]) + math.pi / 2.0
+        if facing is not None:
+            f = np.asarray(facing, np.float64)
+            if f.shape not in ((2,), (3,)):
+                raise ValueError(f"facing must have shape (2,) or (3,), got {f.shape}")
+            check_finite("facing", f)
+            side = d[0] * (f[1] - a[1]) - d[1] * (f[0] - a[0])  # > 0: facing point on the left
+            if side < 0:
+                psi -= math.pi
+        psi = math.atan2(math.sin(psi), math.cos(psi))
+    else:
+        check_finite("heading", heading)
+        psi = float(heading)
+    s = np.linspace(0.0, 1.0, num_steps)[:, None]
+    xyz = a + s * d
+    return np.concatenate([xyz, np.full((num_steps, 1), psi)], axis=1).astype(np.float32)
+
+
+def lawnmower_path(
+    x_range: Any,
+    y_values: Any,
+    z_values: Any,
+    steps_per_pass: int,
+    heading: float = math.pi / 2,
+    connect: bool = True,
+) -> np.ndarray:
+    """Boustrophedon of parallel passes along x at every ``(y, z)`` offset: poses ``[T, 4]``.
+
+    Passes run along ``x`` from ``x_range[0]`` to ``x_range[1]`` and back,
+    alternately, at each depth ``y`` (inner loop, snaking) and height ``z``
+    (outer loop). The boresight keeps the yaw ``heading`` (default ``π/2``:
+    facing +y, so tags should lie at larger y than the passes). For 3D
+    observability give ≥ 2 depths and ≥ 2 heights (non-collinear ``(y, z)``
+    offsets; module docstring, "Paths of a UHF reader").
+
+    Args:
+        x_range: ``(x_start, x_end)`` (m).
+        y_values, z_values: ``[Ny]``, ``[Nz]`` pass offsets (m); ``z ≥ 0``.
+        steps_per_pass: poses per pass (≥ 2), ends included.
+        heading: constant yaw (rad).
+        connect: add straight connector moves between passes, sampled at the
+            pass spacing (the reader keeps reading while it moves over); with
+            False consecutive passes are simply concatenated.
+
+    Returns float32 ``[T, 4]``; ``T = Ny·Nz·steps_per_pass`` plus the connectors.
+    """
+    xr = np.asarray(x_range, np.float64)
+    check_shape("x_range", xr, (2,))
+    check_finite("x_range", xr)
+    if xr[0] == xr[1]:
+        raise ValueError(f"x_range must have two different ends, got {xr.tolist()}")
+    ys = np.atleast_1d(np.asarray(y_values, np.float64))
+    zs = np.atleast_1d(np.asarray(z_values, np.float64))
+    check_shape("y_values", ys, (None,))
+    check_shape("z_values", zs, (None,))
+    if ys.size < 1 or zs.size < 1:
+        raise ValueError("y_values and z_values must hold at least one offset each")
+    check_finite("y_values", ys)
+    check_finite("z_values", zs)
+    if np.any(zs < 0):
+        raise ValueError(f"z_values (reader heights) must be ≥ 0, got {zs.tolist()}")
+    steps = check_positive_int("steps_per_pass", steps_per_pass)
+    if steps < 2:
+        raise ValueError(f"steps_per_pass must be ≥ 2, got {steps}")
+    check_finite("heading", heading)
+    spacing = abs(xr[1] - xr[0]) / (steps - 1)
+    segs: list[np.ndarray] = []
+    n = 0
+    for iz, z in enumerate(zs):
+        y_order = ys if iz % 2 == 0 else ys[::-1]
+        for y in y_order:
+            x0, x1 = (xr[0], xr[1]) if n % 2 == 0 else (xr[1], xr[0])
+            p = np.stack([np.linspace(x0, x1, steps), np.full(steps, y), np.full(steps, z)], axis=1)
+            if connect and segs:
+                prev = segs[-1][-1]
+                gap = np.linalg.norm(p[0] - prev)
+                m = int(math.ceil(gap / spacing - 1e-9)) - 1
+                if m > 0:
+                    f = np.arange(1, m + 1)[:, None] / (m + 1)
+                    segs.append(prev + f * (p[0] - prev))
+            segs.append(p)
+            n += 1
+    xyz = np.concatenate(segs, axis=0)
+    return np.concatenate([xyz, np.full((xyz.shape[0], 1), float(heading))], axis=1).astype(np.float32)

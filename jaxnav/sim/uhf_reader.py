@@ -5,20 +5,20 @@
 A reader antenna on a robot moves along a known path of poses
 ``r_t = (x, y, z, ψ)`` (m, m, m, rad; ``ψ`` the yaw of the boresight) and
 reads ``G`` static tags at ``p_g = (x, y, z)`` (m), ``J`` times per step. The
-output is a :class:`~jaxnav.models.uhf_rfid.UHFReads` with leading axes
+output is a :class:`~jaxnav.models.uhf_reads.UHFReads` with leading axes
 ``[G, T, J]`` (RSSI in W, phase in rad in ``[0, 2π)``, wavelength in m, a
 validity mask). The sensor model it builds on is
 :mod:`jaxnav.models.uhf_rfid` (monostatic power ``y = P_T η_T G_R² G_T² L² |h|⁴``
 with the two-ray ``L``, phase ``φ = −4πD/λ + θ_off``); its functions
-(:func:`~jaxnav.models.uhf_rfid.power_scale`,
-:func:`~jaxnav.models.uhf_rfid.sample_rssi`,
-:func:`~jaxnav.models.uhf_rfid.phase`,
-:func:`~jaxnav.models.uhf_rfid.antenna_gain`) are used here, not re-derived.
+(:func:`~jaxnav.models.uhf_channel.power_scale`,
+:func:`~jaxnav.models.uhf_channel.sample_rssi`,
+:func:`~jaxnav.models.uhf_channel.phase`,
+:func:`~jaxnav.models.uhf_antenna.antenna_gain`) are used here, not re-derived.
 
 .. rubric:: Equations implemented (per tag ``p``, reader pose ``r``, wavelength ``λ``, read ``j``)
 
 Let ``D = |p − r_xyz|`` and ``a = P_T η_T G_R(p − r)² G_T² L(D, h_R, h_T, λ)²``
-(:func:`~jaxnav.models.uhf_rfid.power_scale`: the deterministic part of
+(:func:`~jaxnav.models.uhf_channel.power_scale`: the deterministic part of
 [A] §4.1.2). Wall reflections use the **image method**: the room is the box
 ``[lo, hi]``; its four vertical walls and its ceiling (indices ``0 … 4`` =
 ``x = lo_x, x = hi_x, y = lo_y, y = hi_y, z = hi_z``) reflect with real
@@ -45,10 +45,10 @@ square of the one-way channel, so ``|h_mp|`` enters like [A]'s ``|h|``::
     φ_j = (−4πD/λ + 2·arg h_mp + θ_off + ε_j)  mod 2π,   ε_j ~ N(0, σ_φ²)            (phase, rad)
 
 i.e. [A]'s ``|h|⁴ = |h_mp|⁴ · |h_f|⁴``: deterministic multipath from the
-walls times an i.i.d. Gamma fading ``g_j`` (:func:`~jaxnav.models.uhf_rfid.sample_rssi`
+walls times an i.i.d. Gamma fading ``g_j`` (:func:`~jaxnav.models.uhf_channel.sample_rssi`
 with ``a·|h_mp|⁴``), and the phase is the angle of the composite round-trip
 channel ``(h_mp e^{−j2πD/λ})²`` plus the offset and a Gaussian noise
-(:func:`~jaxnav.models.uhf_rfid.phase` with offset ``θ_off + 2 arg h_mp + ε``).
+(:func:`~jaxnav.models.uhf_channel.phase` with offset ``θ_off + 2 arg h_mp + ε``).
 The squared-Gamma model of [A] is exact for ``h_mp = 1`` ("light") and
 mis-specified otherwise ("strong"): along a path ``|h_mp|⁴`` has fading dips
 and several maxima, so RSSI vs reader position is multimodal ([A] Fig. 5.2,
@@ -61,7 +61,7 @@ is powered, ``P_inc ≥ tag_sensitivity``, the reader hears it,
 succeeds (collisions, protocol losses). Missing reads are masked (never
 zeros): their slots hold the finite dummies ``rssi = MASKED_RSSI = 1 W``,
 ``phase = 0`` and the true reader pose and wavelength, which pass
-:func:`~jaxnav.models.uhf_rfid.validate_reads`.
+:func:`~jaxnav.models.uhf_reads.validate_reads`.
 
 Channel hopping: ``wavelengths`` is one λ or an array ``[C]`` cycled over
 steps (step ``t`` uses ``λ[t mod C]`` for its ``J`` reads).
@@ -86,24 +86,17 @@ id, position and offset, never on the other tags or their order.
 * Reader sensitivity :data:`DEFAULT_SENSITIVITY` = −80 dBm (typical of UHF
   readers, −70 to −85 dBm); tag chip sensitivity
   :data:`DEFAULT_TAG_SENSITIVITY` = −18 dBm (a typical passive UHF chip). With
-  :data:`~jaxnav.models.uhf_rfid.DEFAULT_CHANNEL` the forward link binds first
+  :data:`~jaxnav.models.uhf_channel.DEFAULT_CHANNEL` the forward link binds first
   (as in real passive systems): in the main lobe tags are read to ≈ 11 m, in
   the back lobe only to ≈ 1.1 m.
 
 **Paths**
 
-:func:`line_path` is the straight pass of [A] Fig. 5.2 (distance to the tag
-first decreasing, then increasing). One straight line cannot localise a tag
-in 3D: every distance to points of a line is unchanged by a rotation about
-the line, so a circle of positions fits (the antenna pattern breaks this only
-coarsely). Parallel passes whose cross-section offsets ``(y, z)`` are
-**not collinear** (:func:`lawnmower_path` with ≥ 2 depths and ≥ 2 heights)
-remove it: the range profile along each pass gives ``x`` and the
-perpendicular distance to that pass, and three perpendicular distances to
-non-collinear points of the ``(y, z)`` plane fix ``(y, z)`` (two leave a
-mirror image). With an unknown phase offset the phase gives range
-*differences* along each pass, whose curvature still fixes the perpendicular
-distance, so the argument holds for phase-only localization too.
+The reader's paths are defined in :mod:`jaxnav.sim.trajectories` (its
+"Paths of a UHF reader") and re-exported here:
+:func:`~jaxnav.sim.trajectories.line_path`, the straight pass of [A]
+Fig. 5.2, and :func:`~jaxnav.sim.trajectories.lawnmower_path`, parallel
+passes that make a tag observable in 3D.
 
 Units: SI (m, rad, W). All array functions are jittable and differentiable in
 the continuous parameters (positions, ``Γ``, room, ``k``, ``θ``, ``σ_φ``, λ);
@@ -135,6 +128,7 @@ from jaxnav.core.validation import (
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import uhf_rfid
 from jaxnav.models.uhf_rfid import DEFAULT_CHANNEL, ChannelParams, GammaParams, UHFReads
+from jaxnav.sim.trajectories import DEFAULT_READER_HEIGHT, lawnmower_path, line_path
 
 __all__ = [
     "SEARCH_BOX_A",
@@ -166,9 +160,6 @@ __all__ = [
 
 SEARCH_BOX_A = (np.array([0.0, 0.0, 0.0]), np.array([2.0, 3.0, 2.0]))
 """[A] §5.2's 2 m × 3 m × 2 m search box ``(lo, hi)`` (m); the placement at the origin is ours."""
-
-DEFAULT_READER_HEIGHT = 1.0
-"""Reader antenna height (m) when a path is given in 2D (ours)."""
 
 DEFAULT_SENSITIVITY = 1e-11
 """Reader sensitivity −80 dBm = 1e-11 W (ours, as typical UHF readers hear −70 to −85 dBm)."""
@@ -217,7 +208,7 @@ class Multipath(NamedTuple):
     """Multipath environment (a differentiable pytree; module docstring for the equations).
 
     Attributes:
-        gamma: :class:`~jaxnav.models.uhf_rfid.GammaParams` of the diffuse fading
+        gamma: :class:`~jaxnav.models.uhf_channel.GammaParams` of the diffuse fading
             ``g = |h_f|² ~ Gamma(k, θ)``.
         phase_sigma: ``σ_φ`` (rad), sd of the Gaussian phase noise ``ε``.
         room: :class:`Room`; all ``Γ = 0`` gives the light (two-ray + Gamma) model.
@@ -306,144 +297,6 @@ def image_sequences(order: int) -> tuple[tuple[int, ...], ...]:
                 if same_axis or w1 < w2:
                     seqs.append((w1, w2))
     return tuple(seqs)
-
-
-# --------------------------------------------------------------------------------------
-# Paths (host-side NumPy)
-# --------------------------------------------------------------------------------------
-
-
-def _point3(name: str, p: Any, height: float | None) -> np.ndarray:
-    v = np.asarray(p, np.float64)
-    if v.shape not in ((2,), (3,)):
-        raise ValueError(f"{name} must have shape (2,) or (3,), got {v.shape}")
-    check_finite(name, v)
-    if v.shape == (2,):
-        v = np.append(v, DEFAULT_READER_HEIGHT if height is None else float(height))
-    elif height is not None:
-        v = v.copy()
-        v[2] = float(height)
-    if v[2] < 0:
-        raise ValueError(f"{name} z (height above the ground z = 0) must be ≥ 0, got {v[2]}")
-    return v
-
-
-def line_path(
-    start: Any,
-    end: Any,
-    num_steps: int,
-    heading: float | None = None,
-    height: float | None = None,
-    facing: Any = None,
-) -> np.ndarray:
-    """Reader poses ``[T, 4]`` ``(x, y, z, ψ)`` evenly spaced on the segment ``start → end`` ([A] Fig. 5.2).
-
-    Args:
-        start, end: ``[2]`` (x, y) or ``[3]`` (x, y, z) positions (m).
-        num_steps: ``T ≥ 2`` poses, both ends included.
-        heading: constant boresight yaw ``ψ`` (rad). Default: perpendicular to
-            the motion (a side-looking antenna), toward the side of ``facing``
-            if given, else to the left of the direction of travel
-            (``atan2(Δy, Δx) + π/2``).
-        height: reader height (m); overrides the z of 3D points; default
-            :data:`DEFAULT_READER_HEIGHT` for 2D points.
-        facing: optional ``[2]``/``[3]`` point (e.g. the tag) the antenna should face.
-
-    Returns float32 ``[T, 4]``.
-    """
-    num_steps = check_positive_int("num_steps", num_steps)
-    if num_steps < 2:
-        raise ValueError(f"num_steps must be ≥ 2 (a line has two ends), got {num_steps}")
-    a = _point3("start", start, height)
-    b = _point3("end", end, height)
-    d = b - a
-    if np.hypot(d[0], d[1]) <= 1e-12 and heading is None:
-        raise ValueError("start and end have the same (x, y): give an explicit heading")
-    if heading is None:
-        psi = math.atan2(d[1], d[0]) + math.pi / 2.0
-        if facing is not None:
-            f = np.asarray(facing, np.float64)
-            if f.shape not in ((2,), (3,)):
-                raise ValueError(f"facing must have shape (2,) or (3,), got {f.shape}")
-            check_finite("facing", f)
-            side = d[0] * (f[1] - a[1]) - d[1] * (f[0] - a[0])  # > 0: facing point on the left
-            if side < 0:
-                psi -= math.pi
-        psi = math.atan2(math.sin(psi), math.cos(psi))
-    else:
-        check_finite("heading", heading)
-        psi = float(heading)
-    s = np.linspace(0.0, 1.0, num_steps)[:, None]
-    xyz = a + s * d
-    return np.concatenate([xyz, np.full((num_steps, 1), psi)], axis=1).astype(np.float32)
-
-
-def lawnmower_path(
-    x_range: Any,
-    y_values: Any,
-    z_values: Any,
-    steps_per_pass: int,
-    heading: float = math.pi / 2,
-    connect: bool = True,
-) -> np.ndarray:
-    """Boustrophedon of parallel passes along x at every ``(y, z)`` offset: poses ``[T, 4]``.
-
-    Passes run along ``x`` from ``x_range[0]`` to ``x_range[1]`` and back,
-    alternately, at each depth ``y`` (inner loop, snaking) and height ``z``
-    (outer loop). The boresight keeps the yaw ``heading`` (default ``π/2``:
-    facing +y, so tags should lie at larger y than the passes). For 3D
-    observability give ≥ 2 depths and ≥ 2 heights (non-collinear ``(y, z)``
-    offsets; module docstring, "Paths").
-
-    Args:
-        x_range: ``(x_start, x_end)`` (m).
-        y_values, z_values: ``[Ny]``, ``[Nz]`` pass offsets (m); ``z ≥ 0``.
-        steps_per_pass: poses per pass (≥ 2), ends included.
-        heading: constant yaw (rad).
-        connect: add straight connector moves between passes, sampled at the
-            pass spacing (the reader keeps reading while it moves over); with
-            False consecutive passes are simply concatenated.
-
-    Returns float32 ``[T, 4]``; ``T = Ny·Nz·steps_per_pass`` plus the connectors.
-    """
-    xr = np.asarray(x_range, np.float64)
-    check_shape("x_range", xr, (2,))
-    check_finite("x_range", xr)
-    if xr[0] == xr[1]:
-        raise ValueError(f"x_range must have two different ends, got {xr.tolist()}")
-    ys = np.atleast_1d(np.asarray(y_values, np.float64))
-    zs = np.atleast_1d(np.asarray(z_values, np.float64))
-    check_shape("y_values", ys, (None,))
-    check_shape("z_values", zs, (None,))
-    if ys.size < 1 or zs.size < 1:
-        raise ValueError("y_values and z_values must hold at least one offset each")
-    check_finite("y_values", ys)
-    check_finite("z_values", zs)
-    if np.any(zs < 0):
-        raise ValueError(f"z_values (reader heights) must be ≥ 0, got {zs.tolist()}")
-    steps = check_positive_int("steps_per_pass", steps_per_pass)
-    if steps < 2:
-        raise ValueError(f"steps_per_pass must be ≥ 2, got {steps}")
-    check_finite("heading", heading)
-    spacing = abs(xr[1] - xr[0]) / (steps - 1)
-    segs: list[np.ndarray] = []
-    n = 0
-    for iz, z in enumerate(zs):
-        y_order = ys if iz % 2 == 0 else ys[::-1]
-        for y in y_order:
-            x0, x1 = (xr[0], xr[1]) if n % 2 == 0 else (xr[1], xr[0])
-            p = np.stack([np.linspace(x0, x1, steps), np.full(steps, y), np.full(steps, z)], axis=1)
-            if connect and segs:
-                prev = segs[-1][-1]
-                gap = np.linalg.norm(p[0] - prev)
-                m = int(math.ceil(gap / spacing - 1e-9)) - 1
-                if m > 0:
-                    f = np.arange(1, m + 1)[:, None] / (m + 1)
-                    segs.append(prev + f * (p[0] - prev))
-            segs.append(p)
-            n += 1
-    xyz = np.concatenate(segs, axis=0)
-    return np.concatenate([xyz, np.full((xyz.shape[0], 1), float(heading))], axis=1).astype(np.float32)
 
 
 def anchor_position(
@@ -652,7 +505,7 @@ def expected_rssi(
 ) -> jax.Array:
     """Noise-free mean RSSI ``E[y] = a·|h_mp|⁴·k(k+1)θ²`` (W) along ``path [T, 4]`` for ``tag [3]``: ``[T]``.
 
-    Under ``"light"`` this is :func:`jaxnav.models.uhf_rfid.mean_power`
+    Under ``"light"`` this is :func:`jaxnav.models.uhf_channel.mean_power`
     (unimodal along a line); under ``"strong"`` it shows the wall fading dips.
     """
     mp = get_multipath(multipath)
@@ -736,15 +589,15 @@ def simulate_reads(
     order: int = 2,
     softness: Any = None,
 ) -> UHFReads:
-    """RSSI and phase reads of ``G`` tags along a reader path: :class:`~jaxnav.models.uhf_rfid.UHFReads` ``[G, T, J]``.
+    """RSSI and phase reads of ``G`` tags along a reader path: :class:`~jaxnav.models.uhf_reads.UHFReads` ``[G, T, J]``.
 
     Args:
         key: PRNG key (module docstring, "Keys").
         path: ``[T, 4]`` reader poses ``(x, y, z, ψ)`` (m, m, m, rad), ``z ≥ 0``
-            (:func:`line_path`, :func:`lawnmower_path`).
+            (:func:`~jaxnav.sim.trajectories.line_path`, :func:`~jaxnav.sim.trajectories.lawnmower_path`).
         tags: ``[G, 3]`` tag positions (m), ``z ≥ 0``.
         theta_offset: ``[G]`` phase offsets ``θ_off`` (rad); default 0.
-        channel: :class:`~jaxnav.models.uhf_rfid.ChannelParams`
+        channel: :class:`~jaxnav.models.uhf_channel.ChannelParams`
             (``channel.wavelength`` is the λ unless ``wavelengths`` is given).
         multipath: ``"light"``, ``"strong"`` or a :class:`Multipath`.
         reads_per_step: ``J`` read slots per step (all at the step's pose).
@@ -758,7 +611,7 @@ def simulate_reads(
             a subset with its ids reproduces the full run's reads of those tags.
         order: image-method reflection order (0, 1 or 2; ignored without walls).
         softness: antenna-gain relaxation (rad), see
-            :func:`jaxnav.models.uhf_rfid.antenna_gain`.
+            :func:`jaxnav.models.uhf_antenna.antenna_gain`.
 
     Returns:
         ``UHFReads`` with ``reader [G, T, J, 4]``, ``rssi/phase/wavelength/mask
@@ -828,7 +681,7 @@ def anchor_power_scale(
 ) -> jax.Array:
     """The true ``a = P_T η_T G_R² G_T² L²`` (W) of every read slot of an anchor at the known ``anchor [3]``.
 
-    ``a`` is :func:`jaxnav.models.uhf_rfid.power_scale` at each read's reader pose
+    ``a`` is :func:`jaxnav.models.uhf_channel.power_scale` at each read's reader pose
     and wavelength; same shape as ``reads.rssi``. Feed it with the flattened
     reads and mask to :func:`jaxnav.models.uhf_calibration.estimate_gamma` to fit
     ``(k, θ)`` from the anchor ([A] §4.3.1). Under strong multipath the fit

@@ -92,7 +92,6 @@ import numpy as np
 from jaxnav.core import filter as filter_api
 from jaxnav.core import kalman, memory
 from jaxnav.core.validation import (
-    check_choice,
     check_covariance,
     check_finite,
     check_magnitude,
@@ -101,7 +100,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, get_motion_model
+from jaxnav.models.motion import check_motion_model, get_motion_model
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 __all__ = [
@@ -143,7 +142,7 @@ class EKFSLAMConfig:
 
     def __post_init__(self) -> None:
         check_positive_int("num_landmarks", self.num_landmarks)
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
         if self.gate_probability is not None:
             kalman.chi2_gate(self.gate_probability, 2)  # raises a ValueError naming the problem
 

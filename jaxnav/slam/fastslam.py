@@ -86,7 +86,13 @@ from jaxnav.core.validation import (
     check_slots,
 )
 from jaxnav.models import landmarks as lm
-from jaxnav.models.motion import MODELS, controls_in_domain, get_motion_model, noise_in_domain, validate_controls
+from jaxnav.models.motion import (
+    check_motion_model,
+    controls_in_domain,
+    get_motion_model,
+    noise_in_domain,
+    validate_controls,
+)
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 from jaxnav.models.observation import HF_FOOTPRINT, OBSERVATION_MODELS, RANGE_BEARING, ObservationModel
 
@@ -182,7 +188,7 @@ class FastSLAMConfig:
         check_positive_int("num_particles", self.num_particles)
         check_positive_int("num_landmarks", self.num_landmarks)
         check_choice("version", self.version, (1, 2))
-        check_choice("motion_model", self.motion_model, MODELS)
+        check_motion_model("motion_model", self.motion_model)
         if not isinstance(self.observation_model, ObservationModel):
             check_choice("observation_model", self.observation_model, OBSERVATION_MODELS)
         check_choice("resampling", self.resampling, resampling.SCHEMES)

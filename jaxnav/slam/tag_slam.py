@@ -88,7 +88,13 @@ from jaxnav.core.validation import (
     check_shape,
 )
 from jaxnav.models import hf_rfid
-from jaxnav.models.motion import MODELS, controls_in_domain, get_motion_model, noise_in_domain, validate_controls
+from jaxnav.models.motion import (
+    check_motion_model,
+    controls_in_domain,
+    get_motion_model,
+    noise_in_domain,
+    validate_controls,
+)
 from jaxnav.models.motion import validate_noise as validate_motion_noise
 
 _POSE_ANGLE_DIMS = (2,)
@@ -185,7 +191,7 @@ def validate_common_config(config: Any) -> None:
     check_positive_int("num_particles", config.num_particles)
     check_positive_int("num_tag_particles", config.num_tag_particles)
     check_positive_int("max_tags", config.max_tags)
-    check_choice("motion_model", config.motion_model, MODELS)
+    check_motion_model("motion_model", config.motion_model)
     check_choice("resampling", config.resampling, resampling.SCHEMES)
     check_fraction("ess_threshold", config.ess_threshold)
     check_fraction("tag_ess_threshold", config.tag_ess_threshold)

@@ -86,8 +86,12 @@ def ancestors(cumulative: np.ndarray, m: int) -> np.ndarray:
     return np.searchsorted(cumulative, np.arange(m), side="right")
 
 
+# one program per size (run op by op, each size compiled its hundred operations)
+_sorted_draws = jax.jit(R.sorted_uniform_draws, static_argnames="size")
+
+
 def _draw_keys(key, count: int, size: int) -> np.ndarray:
-    d = R.sorted_uniform_draws(key, jnp.asarray(count), jnp.asarray(count), size)
+    d = _sorted_draws(key, jnp.asarray(count), jnp.asarray(count), size=size)
     s, f = np.asarray(d.stratum, np.int64)[:count], np.asarray(d.fraction, np.int64)[:count]
     return s * TWO32 + f
 

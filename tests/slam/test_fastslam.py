@@ -29,10 +29,6 @@ def _sims(key, runs, steps, motion_noise=MOTION, sensor=SENSOR):
     return jax.vmap(lambda k: lw.simulate(k, LANDMARKS, X0, u, motion_noise, sensor, max_range=6.0))(keys)
 
 
-def _chunk(tree, i):
-    return jax.tree_util.tree_map(lambda x: x[:, i * CHUNK : (i + 1) * CHUNK], tree)
-
-
 @pytest.mark.parametrize("version", [1, 2])
 def test_map_and_pose_errors_shrink_as_data_accumulates(version, getkey):
     """Over 8 runs and three half-loops, the landmark error after the third is below the first,
@@ -45,20 +41,23 @@ def test_map_and_pose_errors_shrink_as_data_accumulates(version, getkey):
     @jax.jit
     def filt(keys, sims):
         def one(k, sim):
-            state = fs.init(k, cfg, PARAMS, X0)
-            out = []
-            for i in range(3):
-                c = _chunk(jax.tree_util.tree_map(lambda x: x[None], sim), i)
-                c = jax.tree_util.tree_map(lambda x: x[0], c)
-                state, tr = fs.run(jax.random.fold_in(k, i), state, cfg, PARAMS, c.controls, c.observations)
+            def half_loop(state, chunk):
+                i, controls, observations = chunk
+                state, tr = fs.run(jax.random.fold_in(k, i), state, cfg, PARAMS, controls, observations)
                 m, seen = fs.map_estimate(state)
                 size = jnp.sum(jnp.exp(state.log_weights)[:, None] * jnp.trace(state.covs, axis1=-2, axis2=-1), axis=0)
-                out.append((m, seen, size, tr.estimate))
-            return out
+                return state, (m, seen, size, tr.estimate)
+
+            # the half-loops as one scan: the filter is compiled once, not once per half-loop
+            chunks = jax.tree_util.tree_map(
+                lambda x: x.reshape(3, CHUNK, *x.shape[1:]), (sim.controls, sim.observations)
+            )
+            return jax.lax.scan(half_loop, fs.init(k, cfg, PARAMS, X0), (jnp.arange(3), *chunks))[1]
 
         return jax.vmap(one)(keys, sims)
 
-    out = filt(keys, sims)
+    stacked = filt(keys, sims)  # fields [runs, 3, ...]
+    out = [tuple(x[:, i] for x in stacked) for i in range(3)]
     first_seen = np.asarray(out[0][1])  # [runs, M]: compare the same landmarks across chunks
     assert first_seen.mean() > 0.8
     # The map's shape (error after rigid alignment, jaxnav.metrics.map_errors) sharpens with
@@ -173,6 +172,10 @@ def _sequential_reference(om, r, poses, means, covs, seen, obs, m):
     return means, covs, seen, loglik, num_new
 
 
+# the scan that gives the derivatives (it has no lanes: jitted once for all of them)
+_in_order_range_bearing = jax.jit(lambda *a: fs.update_landmarks_in_order(observation.RANGE_BEARING, *a))
+
+
 @pytest.mark.parametrize("lanes", [1, 2, 3, 12])
 def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lanes, getkey):
     """Vectorised first observations plus the loop for the rest (repeats, overflow) give what
@@ -198,8 +201,7 @@ def test_landmark_update_equals_slot_after_slot_whatever_the_parallel_slots(lane
     valid, safe_ids, _ = fs.slot_valid(obs, m)
     ref_means, ref_covs, ref_seen, ref_ll, ref_new = _sequential_reference(om, r, poses, means, covs, seen, obs, m)
     fast = jax.jit(lambda *a: fs.update_landmarks(om, *a, lanes))
-    in_order = jax.jit(lambda *a: fs.update_landmarks_in_order(om, *a))  # the scan that gives the derivatives
-    for update in (fast, in_order):
+    for update in (fast, _in_order_range_bearing):
         upd, new_seen, ll, num_new = update(r, poses, means, covs, seen, obs, valid, safe_ids)
         got_means, got_covs = fs.write_rows(means, covs, upd, jnp.arange(n))
         np.testing.assert_allclose(got_means, ref_means, rtol=1e-5, atol=1e-6)
@@ -365,13 +367,12 @@ def test_bad_input_and_single_compilation(getkey):
         fs.FastSLAMConfig(version=3)
     with pytest.raises(ValueError, match="observation_model"):
         fs.FastSLAMConfig(observation_model="sonar")
-    cfg = fs.FastSLAMConfig(num_particles=8, num_landmarks=8)
+    # test_known_map_prior_tracks_pose's shapes: its compiled run is reused
+    cfg = fs.FastSLAMConfig(num_particles=200, num_landmarks=8)
     with pytest.raises(ValueError, match="sensor.sd"):
         fs.init(getkey(), cfg, fs.FastSLAMParams(MOTION, lm.RangeBearingNoise(jnp.asarray([0.1, -1.0]))), X0)
     state = fs.init(getkey(), cfg, PARAMS, X0)
-    sims = _sims(getkey(), 2, 10)
-    a = jax.tree_util.tree_map(lambda x: x[0], sims)
-    b = jax.tree_util.tree_map(lambda x: x[1], sims)
+    a, b = (jax.tree_util.tree_map(lambda x: x[0], _sims(getkey(), 1, 100)) for _ in range(2))
     with pytest.raises(ValueError, match="same number of steps"):
         fs.run(getkey(), state, cfg, PARAMS, a.controls[:5], a.observations)
     fs.run(getkey(), state, cfg, PARAMS, a.controls, a.observations)

@@ -57,6 +57,7 @@ from jaxnav.slam import fastslam, pf_slam, ps_slam
 
 __all__ = [
     "METHODS",
+    "METHOD_LABELS",
     "TRAJECTORIES",
     "HFSetting",
     "World",
@@ -84,6 +85,8 @@ __all__ = [
 
 METHODS = ("pf_slam", "ps_slam", "fastslam")
 """The SLAM methods :func:`run_method` runs (PF-SLAM, PS-SLAM, FastSLAM)."""
+METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
+"""The names of :data:`METHODS` in the tables, the figures and :func:`plot_run`."""
 TRAJECTORIES = ("rectangle", "random", "kidnapping")
 """The trajectories a :class:`HFSetting` can drive."""
 
@@ -495,8 +498,6 @@ def format_errors(rows: list[tuple[str, Any]]) -> str:
 def _draw_run(setting: HFSetting, method: str, world: World, result: MethodRun):
     """The figure of :func:`plot_run`."""
     import matplotlib.pyplot as plt
-
-    from jaxnav.experiments.hf_slam.tables import METHOD_LABELS  # that module imports this one
 
     name = METHOD_LABELS.get(method, method)
     run = world.run

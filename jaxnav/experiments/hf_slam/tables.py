@@ -28,7 +28,13 @@ from jaxnav.experiments import report, stats
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
 from jaxnav.experiments.hf_slam import simulation as hf
-from jaxnav.experiments.hf_slam.simulation import COLUMN_HEADS, ERROR_COLUMNS, NOTHING_MAPPED, TAG_COLUMNS
+from jaxnav.experiments.hf_slam.simulation import (
+    COLUMN_HEADS,
+    ERROR_COLUMNS,
+    METHOD_LABELS,
+    NOTHING_MAPPED,
+    TAG_COLUMNS,
+)
 
 __all__ = [
     "TableRow",
@@ -43,8 +49,6 @@ __all__ = [
     "METHOD_LABELS",
     "EXPERIMENTS",
 ]
-
-METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
 
 ROBOT_COLUMNS = tuple(c for c in ERROR_COLUMNS if c not in TAG_COLUMNS)
 """The error columns every run has (robot x, y, θ, dr); a non-finite one means the run diverged."""

@@ -16,10 +16,10 @@ experiments themselves (Figs. 5.3, 5.5, 5.6 and ``uhf-refresh``) are in
   ``jnp`` because that one is host-side and a run is traced; the tests check
   that both give the same point for the same key). Phase offset 0.
 * One reader antenna (boresight +y) drives a lawnmower
-  (:func:`jaxnav.sim.uhf_reader.lawnmower_path`) of passes along x over the
+  (:func:`jaxnav.sim.trajectories.lawnmower_path`) of passes along x over the
   box's full width, 0.5 and 0.2 m in front of its ``y = 0`` face, at heights
   0.5 and 1.5 m (two depths × two heights: the 3D-observable pattern of
-  :mod:`jaxnav.sim.uhf_reader`, "Paths"). One read slot per step; the reader
+  :mod:`jaxnav.sim.trajectories`, "Paths of a UHF reader"). One read slot per step; the reader
   moves at :data:`SPEED` = 0.2 m/s along the passes (connector moves are
   sampled no coarser), so step ``t`` is at ``time_s = t · Δt`` with
   ``Δt = pass spacing / speed`` (0.2 s in the full variant: 242 steps, 48.2 s).
@@ -27,7 +27,7 @@ experiments themselves (Figs. 5.3, 5.5, 5.6 and ``uhf-refresh``) are in
   with the ``"light"`` or ``"strong"`` preset. ``(k, θ)`` is fitted from all
   the anchor's reads with :func:`jaxnav.models.uhf_calibration.estimate_gamma`
   (closed form, [A] App. D–E; the defaults below 30 valid reads) using the
-  anchor's known ``a`` (:func:`jaxnav.models.uhf_rfid.power_scale`).
+  anchor's known ``a`` (:func:`jaxnav.models.uhf_channel.power_scale`).
 * [A] Alg. 6 (:mod:`jaxnav.localization.rfid_tag`, 2,000 particles in the
   full variant, ``σ_phase = 0.1 λ`` in both environments, ESS threshold 0.1,
   Gaussian refresh) runs on the tag's reads; in 2D ``tag_height`` is the
@@ -82,6 +82,7 @@ from jaxnav.experiments import stats
 from jaxnav.localization import rfid_tag as rt
 from jaxnav.models import uhf_calibration
 from jaxnav.models import uhf_rfid as U
+from jaxnav.sim import trajectories
 from jaxnav.sim import uhf_reader as S
 
 __all__ = [
@@ -206,7 +207,7 @@ class UHFInputs(NamedTuple):
 
 def _path(s: UHFSetting) -> np.ndarray:
     lo, hi = S.SEARCH_BOX_A
-    return S.lawnmower_path((float(lo[0]), float(hi[0])), PASS_DEPTHS, PASS_HEIGHTS, s.steps_per_pass)
+    return trajectories.lawnmower_path((float(lo[0]), float(hi[0])), PASS_DEPTHS, PASS_HEIGHTS, s.steps_per_pass)
 
 
 def run_inputs(s: UHFSetting) -> UHFInputs:

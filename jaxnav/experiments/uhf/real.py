@@ -24,10 +24,10 @@ estimate against the tag's ground-truth position.
 * **Antenna**: :data:`ANTENNA`, a main lobe of ±60° (the tags are seen at up
   to 38° off boresight; [A]'s ±30° default would put the track's ends in a
   side lobe of our stepped model, which the real antenna does not show).
-  The power model is otherwise :data:`~jaxnav.models.uhf_rfid.DEFAULT_CHANNEL`
+  The power model is otherwise :data:`~jaxnav.models.uhf_channel.DEFAULT_CHANNEL`
   at the channel-0 wavelength; its absolute scale does not matter because
   the anchor's ``θ`` absorbs it.
-* ``σ_phase = 0.1 λ`` (:data:`~jaxnav.models.uhf_rfid.DEFAULT_PHASE_SIGMA_FRACTION`,
+* ``σ_phase = 0.1 λ`` (:data:`~jaxnav.models.uhf_read_model.DEFAULT_PHASE_SIGMA_FRACTION`,
   [A]'s range 0.05–0.2 λ), not tuned on these data.
 
 What to expect, as the dataset's description says: from a 1 m linear aperture the position along
@@ -127,7 +127,7 @@ class TagResult(NamedTuple):
 
 
 def channel_params() -> U.ChannelParams:
-    """:data:`~jaxnav.models.uhf_rfid.DEFAULT_CHANNEL` with :data:`ANTENNA` and the channel-0 wavelength."""
+    """:data:`~jaxnav.models.uhf_channel.DEFAULT_CHANNEL` with :data:`ANTENNA` and the channel-0 wavelength."""
     lam0 = U.SPEED_OF_LIGHT / float(adarf.CHANNELS_HZ[0])
     return U.DEFAULT_CHANNEL._replace(wavelength=lam0, antenna=ANTENNA)
 

@@ -10,21 +10,38 @@ EKF update. FastSLAM (:mod:`jaxnav.slam.fastslam`) takes one as
   (:mod:`jaxnav.models.landmarks`).
 * :data:`HF_FOOTPRINT` — an HF-RFID reader's detection of a tag, its footprint as a
   Gaussian ([W] §3.2; :mod:`jaxnav.models.hf_rfid`).
+
+On a known map the same models weigh robot poses: :func:`known_map_sensor` turns any of them into
+a :class:`~jaxnav.models.sensor.ParticleSensor` for MCL and its variants, and
+:data:`HF_FOOTPRINT_MAP_SENSOR` is the HF footprint's (localization on a tag carpet of surveyed tags).
 """
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxnav.core import kalman
+from jaxnav.core.validation import check_magnitude, check_shape, check_slots
+from jaxnav.core.weights import wrap_angle
 from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
+from jaxnav.models.sensor import ParticleSensor
 
-__all__ = ["ObservationModel", "RANGE_BEARING", "HF_FOOTPRINT", "OBSERVATION_MODELS"]
+__all__ = [
+    "ObservationModel",
+    "RANGE_BEARING",
+    "HF_FOOTPRINT",
+    "OBSERVATION_MODELS",
+    "known_map_sensor",
+    "HF_FOOTPRINT_MAP_SENSOR",
+]
 
 
 class ObservationModel(NamedTuple):
@@ -96,3 +113,93 @@ the pose, so FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``)."""
 
 OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
 """The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``)."""
+
+
+# --------------------------------------------------------------------------- a known map: pose sensors
+
+
+def _known_map_valid(model: ObservationModel, obs: Any, landmarks: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(valid [K], num_ignored)``: slots set in ``obs.mask`` whose id is a landmark of the map and whose
+    ``z`` is usable (:func:`jaxnav.models.landmarks.usable_measurements`), and how many set slots fail that."""
+    mask = obs.mask.astype(bool)
+    usable = (obs.ids >= 0) & (obs.ids < landmarks.shape[0]) & lm.usable_measurements(obs.z)
+    return mask & usable, jnp.sum(mask & ~usable).astype(jnp.int32)
+
+
+@functools.cache
+def known_map_sensor(model: ObservationModel) -> ParticleSensor:
+    """Observations of landmarks at known positions through ``model``, as a
+    :class:`~jaxnav.models.sensor.ParticleSensor` over poses ``[N, 3]``:
+
+        log p(z_t | x) = Σ_k log N(z_k; h(x, m_{id_k}), R),   R = model.noise_cov(params.sensor),
+
+    over the valid slots, the components of ``model.angle_dims`` of each residual wrapped to
+    ``[-π, π)``. Parameters: any pytree with the fields ``sensor`` (the model's sensor parameters)
+    and ``landmarks [M, D]`` (the map, m; and ``motion`` for the filter). Observations: ``ids [K]``,
+    ``z [K, dz]`` and ``mask [K]``, e.g. :class:`jaxnav.models.landmarks.RangeBearingObs` or
+    :class:`jaxnav.models.hf_rfid.ReaderObservations`; a slot whose id is not in the map, or whose
+    ``z`` is unusable, is dropped and counted. Cached: one model gives one (hashable) sensor.
+
+    For range and bearing, :data:`jaxnav.models.landmarks.RANGE_BEARING_SENSOR` computes the same
+    density with one ``atan2`` per particle and landmark; this generic form evaluates ``h`` and
+    factorises ``R``, for any model.
+    """
+
+    def residuals(particles: jax.Array, obs: Any, positions: jax.Array) -> jax.Array:
+        pred = jax.vmap(jax.vmap(model.mean, (None, 0)), (0, None))(particles, positions)  # [N, K, dz]
+        r = obs.z[None] - pred
+        for d in model.angle_dims:
+            r = r.at[..., d].set(wrap_angle(r[..., d]))
+        return r
+
+    def log_likelihood(particles: jax.Array, obs: Any, params: Any) -> jax.Array:
+        valid, _ = _known_map_valid(model, obs, params.landmarks)
+        positions = jnp.take(params.landmarks, obs.ids, axis=0, mode="clip")
+        obs = obs._replace(z=jnp.where(valid[:, None], obs.z, 0.0))
+        r = residuals(particles, obs, positions)
+        chol = jnp.linalg.cholesky(model.noise_cov(params.sensor).astype(r.dtype))
+        white = jax.scipy.linalg.solve_triangular(chol, jnp.moveaxis(r, -1, 0).reshape(model.obs_dim, -1), lower=True)
+        maha = jnp.sum(white * white, axis=0).reshape(r.shape[:-1])  # [N, K]
+        log_norm = jnp.sum(jnp.log(jnp.diag(chol))) + 0.5 * model.obs_dim * math.log(2.0 * math.pi)
+        return jnp.sum(jnp.where(valid, -0.5 * maha - log_norm, 0.0), axis=-1)
+
+    def check_params(params: Any) -> None:
+        model.validate(params.sensor)
+        check_shape("params.landmarks", params.landmarks, (None, model.landmark_dim))
+        if np.shape(params.landmarks)[0] < 1:
+            raise ValueError("params.landmarks must hold at least one landmark")
+        check_magnitude("params.landmarks", params.landmarks)
+
+    def check_observations(obs: Any, time_axis: bool, params: Any) -> None:
+        for field in ("ids", "z", "mask"):
+            if not hasattr(obs, field):
+                raise ValueError(f"observations must have the fields ids, z and mask, got {type(obs).__name__}")
+        lead = (None, None) if time_axis else (None,)
+        check_shape("observations.ids", obs.ids, lead)
+        check_shape("observations.mask", obs.mask, lead)
+        check_shape("observations.z", obs.z, lead + (model.obs_dim,))
+        if np.shape(obs.ids) != np.shape(obs.mask) or np.shape(obs.z)[:-1] != np.shape(obs.ids):
+            raise ValueError(
+                "observations.ids, .mask and .z must agree in their leading shape, got "
+                f"{np.shape(obs.ids)}, {np.shape(obs.mask)}, {np.shape(obs.z)}"
+            )
+        check_slots("observations", obs.ids, obs.mask, obs.z, num_ids=np.shape(params.landmarks)[0])
+
+    def params_in_domain(params: Any) -> jax.Array:
+        return jnp.all(jnp.diag(model.noise_cov(params.sensor)) > 0)
+
+    return ParticleSensor(
+        f"{model.name}_on_a_known_map",
+        log_likelihood,
+        check_params=check_params,
+        check_observations=check_observations,
+        params_in_domain=params_in_domain,
+        num_ignored=lambda obs, params: _known_map_valid(model, obs, params.landmarks)[1],
+    )
+
+
+HF_FOOTPRINT_MAP_SENSOR = known_map_sensor(HF_FOOTPRINT)
+"""HF-RFID detections of surveyed tags as a pose sensor (:func:`known_map_sensor` of :data:`HF_FOOTPRINT`):
+parameters with ``sensor`` (:class:`jaxnav.models.hf_rfid.HFReaderParams`) and ``landmarks`` (the tag
+positions, e.g. :func:`jaxnav.sim.tag_carpet.tag_positions`), observations
+:func:`jaxnav.models.hf_rfid.landmark_observations` of the detections."""

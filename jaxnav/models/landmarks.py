@@ -110,15 +110,19 @@ def lookup(landmark_map: jax.Array, obs: RangeBearingObs) -> tuple[jax.Array, ja
         for either reason (an id outside the map is never read out of bounds; a ``z``
         the host checks refuse for concrete inputs never reaches a filter).
     """
-    m = landmark_map.shape[0]
-    mask = obs.mask.astype(bool)
-    usable = (obs.ids >= 0) & (obs.ids < m) & usable_measurements(obs.z)
+    mask, usable = _set_and_usable(landmark_map.shape[0], obs)
     valid = mask & usable
     # mode="clip" clamps an id outside the map (such a slot is invalid, its position unused); the
     # default "fill" adds a bounds select that XLA:CPU fuses into every [N, K] consumer, where it
     # would cost more than the rest of the likelihood.
     positions = jnp.take(landmark_map, obs.ids, axis=0, mode="clip")
     return positions, valid, jnp.sum(mask & ~usable).astype(jnp.int32)
+
+
+def _set_and_usable(num_landmarks: int, obs: Any) -> tuple[jax.Array, jax.Array]:
+    """``(mask, usable)`` ``[K]`` bool: the slot is set, and its id is a landmark of the map and its ``z`` usable."""
+    mask = obs.mask.astype(bool)
+    return mask, (obs.ids >= 0) & (obs.ids < num_landmarks) & usable_measurements(obs.z)
 
 
 def usable_measurements(z: jax.Array) -> jax.Array:
@@ -193,14 +197,16 @@ def validate_noise(params: RangeBearingNoise, argument: str = "params.sensor") -
     check_magnitude(f"{argument}.sd", params.sd)
 
 
-def validate_observations(obs: RangeBearingObs, time_axis: bool, num_landmarks: int | None = None) -> None:
-    """Host-side check of the observation slots (``[T, K]`` if ``time_axis``): shapes, integer ids, a
-    boolean (or integer) mask, and finite ``z`` in every valid slot whose id is a landmark of the map
-    (``num_landmarks``; all valid slots when ``None``)."""
+def validate_observations(
+    obs: RangeBearingObs, time_axis: bool, num_landmarks: int | None = None, obs_dim: int = 2
+) -> None:
+    """Host-side check of the observation slots (``[T, K]`` if ``time_axis``): shapes (``z [..., obs_dim]``),
+    integer ids, a boolean (or integer) mask, and finite ``z`` in every valid slot whose id is a landmark
+    of the map (``num_landmarks``; all valid slots when ``None``)."""
     lead = (None, None) if time_axis else (None,)
     check_shape("observations.ids", obs.ids, lead)
     check_shape("observations.mask", obs.mask, lead)
-    check_shape("observations.z", obs.z, lead + (2,))
+    check_shape("observations.z", obs.z, lead + (obs_dim,))
     if jnp.shape(obs.ids) != jnp.shape(obs.mask) or jnp.shape(obs.z)[:-1] != jnp.shape(obs.ids):
         raise ValueError(
             "observations.ids, .mask and .z must agree in their leading shape, got "
@@ -298,8 +304,7 @@ def _map_log_likelihood(poses: jax.Array, obs: RangeBearingObs, params: Any) -> 
 
 def _map_num_ignored(obs: RangeBearingObs, params: Any) -> jax.Array:
     """The third output of :func:`lookup` without its gather of the positions."""
-    mask = obs.mask.astype(bool)
-    usable = (obs.ids >= 0) & (obs.ids < params.landmarks.shape[0]) & usable_measurements(obs.z)
+    mask, usable = _set_and_usable(params.landmarks.shape[0], obs)
     return jnp.sum(mask & ~usable).astype(jnp.int32)
 
 

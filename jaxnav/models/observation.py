@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_magnitude, check_shape, check_slots
+from jaxnav.core.validation import check_magnitude, check_shape
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
@@ -118,14 +118,6 @@ OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRI
 # --------------------------------------------------------------------------- a known map: pose sensors
 
 
-def _known_map_valid(model: ObservationModel, obs: Any, landmarks: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(valid [K], num_ignored)``: slots set in ``obs.mask`` whose id is a landmark of the map and whose
-    ``z`` is usable (:func:`jaxnav.models.landmarks.usable_measurements`), and how many set slots fail that."""
-    mask = obs.mask.astype(bool)
-    usable = (obs.ids >= 0) & (obs.ids < landmarks.shape[0]) & lm.usable_measurements(obs.z)
-    return mask & usable, jnp.sum(mask & ~usable).astype(jnp.int32)
-
-
 @functools.cache
 def known_map_sensor(model: ObservationModel) -> ParticleSensor:
     """Observations of landmarks at known positions through ``model``, as a
@@ -153,8 +145,7 @@ def known_map_sensor(model: ObservationModel) -> ParticleSensor:
         return r
 
     def log_likelihood(particles: jax.Array, obs: Any, params: Any) -> jax.Array:
-        valid, _ = _known_map_valid(model, obs, params.landmarks)
-        positions = jnp.take(params.landmarks, obs.ids, axis=0, mode="clip")
+        positions, valid, _ = lm.lookup(params.landmarks, obs)
         obs = obs._replace(z=jnp.where(valid[:, None], obs.z, 0.0))
         r = residuals(particles, obs, positions)
         chol = jnp.linalg.cholesky(model.noise_cov(params.sensor).astype(r.dtype))
@@ -171,19 +162,9 @@ def known_map_sensor(model: ObservationModel) -> ParticleSensor:
         check_magnitude("params.landmarks", params.landmarks)
 
     def check_observations(obs: Any, time_axis: bool, params: Any) -> None:
-        for field in ("ids", "z", "mask"):
-            if not hasattr(obs, field):
-                raise ValueError(f"observations must have the fields ids, z and mask, got {type(obs).__name__}")
-        lead = (None, None) if time_axis else (None,)
-        check_shape("observations.ids", obs.ids, lead)
-        check_shape("observations.mask", obs.mask, lead)
-        check_shape("observations.z", obs.z, lead + (model.obs_dim,))
-        if np.shape(obs.ids) != np.shape(obs.mask) or np.shape(obs.z)[:-1] != np.shape(obs.ids):
-            raise ValueError(
-                "observations.ids, .mask and .z must agree in their leading shape, got "
-                f"{np.shape(obs.ids)}, {np.shape(obs.mask)}, {np.shape(obs.z)}"
-            )
-        check_slots("observations", obs.ids, obs.mask, obs.z, num_ids=np.shape(params.landmarks)[0])
+        if not all(hasattr(obs, field) for field in ("ids", "z", "mask")):
+            raise ValueError(f"observations must have the fields ids, z and mask, got {type(obs).__name__}")
+        lm.validate_observations(obs, time_axis, np.shape(params.landmarks)[0], model.obs_dim)
 
     def params_in_domain(params: Any) -> jax.Array:
         return jnp.all(jnp.diag(model.noise_cov(params.sensor)) > 0)
@@ -194,7 +175,7 @@ def known_map_sensor(model: ObservationModel) -> ParticleSensor:
         check_params=check_params,
         check_observations=check_observations,
         params_in_domain=params_in_domain,
-        num_ignored=lambda obs, params: _known_map_valid(model, obs, params.landmarks)[1],
+        num_ignored=lambda obs, params: lm.lookup(params.landmarks, obs)[2],
     )
 
 

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import check_positive, check_real, is_concrete
+from jaxnav.core.validation import check_choice, check_positive, check_real, is_concrete
 from jaxnav.models import uhf_rfid as U
 from jaxnav.models.sensor import ParticleSensor
 
@@ -66,11 +66,6 @@ _OFFSET = 3  # column of θ_off in a tag hypothesis
 
 def _terms(weighting: str) -> dict[str, bool]:
     return {"use_rssi": weighting in ("combined", "rssi"), "use_phase": weighting in ("combined", "phase")}
-
-
-def _check_weighting(weighting: str) -> None:
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting must be one of {list(WEIGHTINGS)}, got {weighting!r}")
 
 
 # --------------------------------------------------------------------------- a static tag
@@ -147,7 +142,7 @@ def tag_reads_sensor(weighting: str = "combined", softness: float | None = None)
     step, parameters with the fields ``channel``, ``gamma`` and ``phase_sigma``. ``weighting`` is one of
     :data:`WEIGHTINGS`; ``softness`` (rad) the optional relaxation of the antenna pattern's steps
     (:func:`jaxnav.models.uhf_antenna.antenna_gain`), None for [A]'s stepped model."""
-    _check_weighting(weighting)
+    check_choice("weighting", weighting, WEIGHTINGS)
 
     def log_likelihood(particles: jax.Array, reads: U.UHFReads, params: Any) -> jax.Array:
         return tag_reads_log_likelihood(particles, usable_tag_reads(reads)[0], params, weighting, softness)
@@ -251,7 +246,7 @@ def anchor_reads_sensor(weighting: str = "combined", softness: float | None = No
     ``[N, 4 + G]`` (module docstring): observations :class:`AnchorReads` ``[G]`` per step, parameters
     with the fields ``anchors``, ``channel``, ``gamma`` and ``phase_sigma``; ``weighting`` and
     ``softness`` as for :func:`tag_reads_sensor`."""
-    _check_weighting(weighting)
+    check_choice("weighting", weighting, WEIGHTINGS)
 
     def log_likelihood(particles: jax.Array, reads: AnchorReads, params: Any) -> jax.Array:
         return anchor_reads_log_likelihood(particles, usable_anchor_reads(reads)[0], params, weighting, softness)

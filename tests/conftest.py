@@ -65,6 +65,10 @@ def pytest_configure(config):
     # jax was imported above, before the variables were set: configure it directly too.
     jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_ENV])
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(os.environ[_MIN_COMPILE_ENV]))
+    if config.getoption("--compile-report"):
+        from jax import monitoring
+
+        monitoring.register_event_duration_secs_listener(_on_duration_event)
 
 
 # The slowest test files, slowest first (worker-seconds on two cores): collected first, so that xdist
@@ -88,6 +92,67 @@ SLOW_FILES = (
 def pytest_collection_modifyitems(config, items):
     rank = {path: i for i, path in enumerate(SLOW_FILES)}
     items.sort(key=lambda item: rank.get(item.nodeid.partition("::")[0], len(SLOW_FILES)))  # stable: files stay whole
+
+
+# --------------------------------------------------------------------------- where the compile time goes
+
+# jax.monitoring's duration events of the three stages between a Python function and a program.
+_COMPILE_STAGES = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+    "/jax/core/compile/backend_compile_duration": "compile",
+}
+_COMPILE_PROPERTY = "jax_compile_seconds"
+_stage_seconds: dict[str, float] = {}  # this test's seconds per stage, so far
+_compile_report: dict[str, dict[str, float]] = {}  # on the controller: test file -> stage -> seconds
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--compile-report",
+        action="store_true",
+        help="after the run, list the test files by the seconds JAX spent tracing, lowering and compiling "
+        "their programs (in the test processes; notebooks and CLI subprocesses are not counted)",
+    )
+
+
+def _on_duration_event(event: str, duration: float, **_: object) -> None:
+    stage = _COMPILE_STAGES.get(event)
+    if stage is not None:
+        _stage_seconds[stage] = _stage_seconds.get(stage, 0.0) + duration
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """With ``--compile-report``: a test's stage seconds (its setup, call and teardown, the module
+    fixtures it starts or ends included) travel with its teardown report, across xdist workers too."""
+    if item.config.getoption("--compile-report") and call.when == "teardown":
+        item.user_properties.append((_COMPILE_PROPERTY, dict(_stage_seconds)))
+        _stage_seconds.clear()
+    yield
+
+
+def pytest_runtest_logreport(report):
+    if report.when != "teardown":
+        return
+    for name, seconds in report.user_properties:
+        if name == _COMPILE_PROPERTY:
+            per_file = _compile_report.setdefault(report.nodeid.partition("::")[0], {})
+            for stage, s in seconds.items():
+                per_file[stage] = per_file.get(stage, 0.0) + s
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    if not config.getoption("--compile-report") or not _compile_report:
+        return
+    stages = list(_COMPILE_STAGES.values())
+    rows = sorted(_compile_report.items(), key=lambda kv: -sum(kv[1].values()))
+    totals = {st: sum(r.get(st, 0.0) for _, r in rows) for st in stages}
+    terminalreporter.write_sep("=", "JAX compile time by test file (seconds; --compile-report)")
+    terminalreporter.write_line(" ".join(f"{st:>8}" for st in stages) + "  file")
+    terminalreporter.write_line(" ".join(f"{totals[st]:8.1f}" for st in stages) + "  (all files)")
+    for path, seconds in rows[:25]:
+        terminalreporter.write_line(" ".join(f"{seconds.get(st, 0.0):8.1f}" for st in stages) + f"  {path}")
 
 
 def pytest_unconfigure(config):

@@ -84,7 +84,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core.memory import check_run_fits
-from jaxnav.core.validation import MAX_MAGNITUDE, all_finite_within, check_magnitude, first_index, is_concrete
+from jaxnav.core.validation import (
+    MAX_MAGNITUDE,
+    all_finite_within,
+    check_magnitude,
+    first_index,
+    is_array_value,
+    is_concrete,
+)
 
 __all__ = [
     "FilterSpec",
@@ -533,27 +540,13 @@ def _numbers_as_array(x: Any) -> Any:
     return a if a.dtype.kind in "biuf" else x
 
 
-_ARRAY_VALUE_TYPES: dict[type, bool] = {}
-"""Leaf type -> whether it is a JAX array holding values (not a tracer): the test every call makes
-on every leaf of the state, answered from this table after the first time a type is seen."""
-
-
-def _is_array_value(leaf: Any) -> bool:
-    """``leaf`` is a concrete JAX array (immutable values in a buffer that donation can delete)."""
-    kind = type(leaf)
-    known = _ARRAY_VALUE_TYPES.get(kind)
-    if known is None:
-        known = _ARRAY_VALUE_TYPES[kind] = issubclass(kind, jax.Array) and not issubclass(kind, jax.core.Tracer)
-    return known
-
-
 def _check_not_donated(state_leaves: Sequence[Any], state: Any, donating_step: bool) -> None:
     """A state whose buffers were donated to an earlier call (``run(..., donate_state=True)``, or the
     ``step`` of a filter that donates its state) holds no values any more: ``ValueError`` naming the
     field, instead of XLA's message about a deleted buffer."""
-    if not any(_is_array_value(leaf) and leaf.is_deleted() for leaf in state_leaves):
+    if not any(is_array_value(leaf) and leaf.is_deleted() for leaf in state_leaves):
         return
-    name = next(n for n, leaf in _named_leaves(state) if _is_array_value(leaf) and leaf.is_deleted())
+    name = next(n for n, leaf in _named_leaves(state) if is_array_value(leaf) and leaf.is_deleted())
     keep = (
         "this filter's step donates its state, so copy a state you want to keep before passing it "
         "(jax.tree_util.tree_map(jnp.copy, state)), and run keeps its initial state with donate_state=False"
@@ -614,7 +607,7 @@ class _KnownStates:
 
     def remember(self, context: Any, leaves: Sequence[Any]) -> None:
         """Remember the state whose leaves are ``leaves`` as checked in ``context``."""
-        if not all(_is_array_value(leaf) for leaf in leaves):
+        if not all(is_array_value(leaf) for leaf in leaves):
             return
         entry = (context, tuple(weakref.ref(leaf) for leaf in leaves))
         with self._lock:

@@ -50,7 +50,23 @@ robot moves a million metres per step, so anything larger is a unit or data erro
 
 def is_concrete(x: Any) -> bool:
     """True if ``x`` holds known values (not a tracer)."""
+    if type(x) is np.ndarray or is_array_value(x):  # one array, the common case: no tree walk
+        return True
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+_ARRAY_VALUE_TYPES: dict[type, bool] = {}
+"""Leaf type -> whether it is a JAX array holding values (not a tracer): a test the host checks make
+on every array of every call, answered from this table after the first time a type is seen."""
+
+
+def is_array_value(leaf: Any) -> bool:
+    """``leaf`` is a concrete JAX array (immutable values in a buffer, which donation can delete)."""
+    kind = type(leaf)
+    known = _ARRAY_VALUE_TYPES.get(kind)
+    if known is None:
+        known = _ARRAY_VALUE_TYPES[kind] = issubclass(kind, jax.Array) and not issubclass(kind, jax.core.Tracer)
+    return known
 
 
 def check_positive_int(name: str, value: Any) -> int:
@@ -112,7 +128,9 @@ def check_real(name: str, x: Any) -> None:
             dtype = np.asarray(x).dtype
         except (TypeError, ValueError):  # ragged: not numbers, for the caller's other checks to name
             return
-    if dtype is not None and jnp.issubdtype(dtype, jnp.complexfloating):
+    # A complex dtype is NumPy kind "c" (JAX has no complex type of its own), read without
+    # jnp.issubdtype's dispatch.
+    if dtype is not None and np.dtype(dtype).kind == "c":
         raise ValueError(f"{name} must hold real numbers, got dtype {np.dtype(dtype).name}")
 
 

@@ -211,3 +211,22 @@ def test_state_values_are_checked_with_the_field_and_the_first_bad_index(size):
             filter_api.check_state_arrays(bad)
     with pytest.raises(ValueError, match=r"state.log_weights holds 1 NaN or infinite value\(s\), the first \(inf\)"):
         filter_api.check_state_arrays(good._replace(log_weights=good.log_weights.at[3].set(jnp.inf)))
+
+
+def test_is_concrete_tells_values_from_tracers_and_check_real_refuses_complex_dtypes():
+    """The host checks' two shared tests, whose fast paths read the exact type and the dtype's kind."""
+    from jaxnav.core.validation import check_real
+
+    seen = []
+    for x in (np.ones(3), jnp.ones(3), (jnp.ones(2), np.zeros(1)), 1.5, np.float32(2.0)):
+        assert is_concrete(x)
+    jax.jit(lambda x: seen.append((is_concrete(x), is_concrete((jnp.ones(2), x)))) or x)(jnp.ones(3))
+    jax.vmap(lambda x: seen.append((is_concrete(x), is_concrete({"a": x}))) or x)(jnp.ones((2, 3)))
+    assert seen == [(False, False), (False, False)]
+    for dtype in (np.complex64, np.complex128, jnp.complex64):
+        with pytest.raises(ValueError, match="must hold real numbers, got dtype complex"):
+            check_real("x", np.zeros(2, dtype))
+    with jax.enable_x64(True), pytest.raises(ValueError, match="complex128"):
+        check_real("x", jnp.zeros(2, jnp.complex128))
+    for dtype in (jnp.bfloat16, np.float16, np.float32, np.int8, np.bool_):
+        check_real("x", np.zeros(2, dtype))

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxnav.core import memory
 from jaxnav.core.filter import check_key
-from jaxnav.core.validation import check_positive_int
+from jaxnav.core.validation import check_positive_int, dtype_of
 
 __all__ = ["monte_carlo", "run_keys", "scan_filter", "compiled_vmap"]
 
@@ -173,8 +173,11 @@ def _check_chunk_fits(
     if not memory.guard_enabled():
         return
     keys = jax.ShapeDtypeStruct((chunk, *np.shape(key)), key.dtype)
+    # the dtype a chunk is sliced with: a NumPy float64 stays one (the chunks' signature)
     args = jax.tree_util.tree_map(
-        lambda a: jax.ShapeDtypeStruct((chunk, *np.shape(a)[1:]), _dtype(a), weak_type=getattr(a, "weak_type", False)),
+        lambda a: jax.ShapeDtypeStruct(
+            (chunk, *np.shape(a)[1:]), dtype_of(a), weak_type=getattr(a, "weak_type", False)
+        ),
         run_args,
     )
     if jit:
@@ -194,12 +197,6 @@ def _check_chunk_fits(
         what = f"a monte_carlo chunk of {chunk} runs (its inputs and outputs)"
     size = f"chunk_size ({chunk_size})" if chunk_size is not None else f"chunk_size (None: all {num_runs} runs at once)"
     memory.check_fits(need, what=what, fields=size)
-
-
-def _dtype(a: Any) -> Any:
-    """The dtype ``a`` is sliced with (a NumPy ``float64`` stays one: the chunks' signature)."""
-    dtype = getattr(a, "dtype", None)
-    return np.asarray(a).dtype if dtype is None else dtype
 
 
 def _pad_slice(x: Any, start: int, stop: int, size: int) -> jax.Array:

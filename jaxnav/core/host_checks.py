@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, first_index, is_array_value
+from jaxnav.core.validation import MAX_MAGNITUDE, check_magnitude, dtype_of, first_index, is_array_value
 
 
 class ParamsMemo:
@@ -124,7 +124,7 @@ def check_params_arrays(params: Any) -> None:
     Complex and half-precision (float16, bfloat16) leaves are refused by their dtype, also for
     tracers. Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
     for name, leaf in named_leaves(params, "params"):
-        dtype = np.dtype(_dtype(leaf))
+        dtype = np.dtype(dtype_of(leaf))
         if jnp.issubdtype(dtype, jnp.complexfloating) or (jnp.issubdtype(dtype, jnp.floating) and dtype.itemsize < 4):
             raise ValueError(
                 f"{name} has dtype {dtype.name}: parameters are real numbers in float32 or float64 (cast it "
@@ -142,16 +142,16 @@ def check_state_arrays(state: Any) -> None:
     precision, float32 or float64, with no NaN, no ``+inf``, and ``-inf`` only in fields named
     ``log_…``, and no magnitude above :data:`~jaxnav.core.validation.MAX_MAGNITUDE`.
     Values are skipped for tracers. Raises ``ValueError`` naming the field and index."""
-    floats = [(name, leaf) for name, leaf in named_leaves(state) if np.dtype(_dtype(leaf)).kind == "f"]
+    floats = [(name, leaf) for name, leaf in named_leaves(state) if np.dtype(dtype_of(leaf)).kind == "f"]
     for name, leaf in floats:
-        dtype = np.dtype(_dtype(leaf))
+        dtype = np.dtype(dtype_of(leaf))
         if dtype.itemsize < 4:
             raise ValueError(
                 f"{name} has dtype {dtype}: filter states are float32 or float64 (make the state with the "
                 "filter's init, or cast it with .astype(jnp.float32))"
             )
-    if len({np.dtype(_dtype(leaf)) for _, leaf in floats}) > 1:
-        found = ", ".join(f"{name} {np.dtype(_dtype(leaf))}" for name, leaf in floats)
+    if len({np.dtype(dtype_of(leaf)) for _, leaf in floats}) > 1:
+        found = ", ".join(f"{name} {np.dtype(dtype_of(leaf))}" for name, leaf in floats)
         raise ValueError(f"the state's arrays must share one floating-point dtype, got {found}")
     concrete = [(name, leaf) for name, leaf in floats if not isinstance(leaf, jax.core.Tracer)]
     if not concrete:
@@ -211,11 +211,6 @@ def _raise_bad_values(name: str, v: np.ndarray, log_domain: bool) -> None:
     check_magnitude(name, np.where(v == -np.inf, 0.0, v) if log_domain else v)
 
 
-def _dtype(leaf: Any) -> Any:
-    dtype = getattr(leaf, "dtype", None)
-    return dtype if dtype is not None else np.asarray(leaf).dtype
-
-
 def plain_sequences_as_arrays(inputs: tuple) -> tuple:
     """Inputs given as a Python list or a plain tuple of numbers (not a NamedTuple of fields)
     become NumPy arrays, so that ``run(..., controls.tolist(), ...)`` means what it says; other
@@ -260,7 +255,7 @@ def check_state_precision(state: Any, compute_dtype: np.dtype, params_dtype: np.
     that does): refused too. A float32 state with float32 parameters under x64 is one consistent
     precision and accepted, as is a float64 state with float32 parameters (float64 throughout).
     """
-    floats = [(name, np.dtype(_dtype(leaf))) for name, leaf in named_leaves(state)]
+    floats = [(name, np.dtype(dtype_of(leaf))) for name, leaf in named_leaves(state)]
     floats = [(name, dtype) for name, dtype in floats if dtype.kind == "f"]
     if compute_dtype.itemsize < 8:
         wide = next(((name, dtype) for name, dtype in floats if dtype.itemsize > compute_dtype.itemsize), None)

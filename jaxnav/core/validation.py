@@ -69,6 +69,12 @@ def is_array_value(leaf: Any) -> bool:
     return known
 
 
+def dtype_of(x: Any) -> Any:
+    """The dtype of an array, or the one NumPy reads ``x`` with (a Python number or list)."""
+    dtype = getattr(x, "dtype", None)
+    return dtype if dtype is not None else np.asarray(x).dtype
+
+
 def check_positive_int(name: str, value: Any) -> int:
     """``value`` must be an integer ≥ 1."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -129,8 +135,8 @@ def check_real(name: str, x: Any) -> None:
         except (TypeError, ValueError):  # ragged: not numbers, for the caller's other checks to name
             return
     # A complex dtype is NumPy kind "c" (JAX has no complex type of its own), read without
-    # jnp.issubdtype's dispatch.
-    if dtype is not None and np.dtype(dtype).kind == "c":
+    # jnp.issubdtype's dispatch; JAX's key dtypes have no kind, and are not complex.
+    if getattr(dtype, "kind", None) == "c":
         raise ValueError(f"{name} must hold real numbers, got dtype {np.dtype(dtype).name}")
 
 

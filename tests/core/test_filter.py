@@ -230,3 +230,4 @@ def test_is_concrete_tells_values_from_tracers_and_check_real_refuses_complex_dt
         check_real("x", jnp.zeros(2, jnp.complex128))
     for dtype in (jnp.bfloat16, np.float16, np.float32, np.int8, np.bool_):
         check_real("x", np.zeros(2, dtype))
+    check_real("key", jax.random.key(0))  # a key dtype, which NumPy cannot read, is not complex

@@ -1,4 +1,5 @@
-"""The ``jaxnav`` command line: ``--version``, ``demo``, ``mrclam``, ``hf-slam``, ``ir``, ``uhf-real``, ``experiments``.
+"""The ``jaxnav`` command line: ``--version``, ``demo``, ``mrclam``, ``uwb``, ``hf-slam``, ``ir``, ``uhf-real``,
+``experiments``.
 
 Bad input never ends in a traceback: every refusal is one line on stderr,
 ``jaxnav COMMAND: error: MESSAGE``, naming the option or the file, with exit
@@ -25,7 +26,8 @@ import zlib
 from jaxnav._version import __version__
 
 # the help text lists these without importing the experiment; tests/test_cli.py checks they match
-MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2")
+MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2", "pf_slam", "ps_slam")
+UWB_ALGORITHMS = ("dead_reckoning", "mcl", "mcl_t", "pf_slam", "ps_slam")
 HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 IR_LAYOUTS = ("proposed", "unique-11")
@@ -293,6 +295,29 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
         if args.out:
             _write_plot(lambda path: xp.plot_robot(seq, results, path), f"{args.out}-robot{robot}.png")
     print(xp.format_table(rows))
+    return 0
+
+
+def _cmd_uwb(args: argparse.Namespace) -> int:
+    algorithms = _names("--algorithms", args.algorithms, UWB_ALGORITHMS, "algorithm")
+    if args.out:
+        _check_out_files("--out", args.out, [args.out])
+    from jaxnav.experiments import uwb as xp
+    from jaxnav.io import uwb as data
+
+    folder = data.data_dir(args.data)
+    print(
+        f"jaxnav {__version__}: TU Chemnitz Labyrinth UWB dataset from {folder}, {args.runs} run(s), seed {args.seed}"
+    )
+    print("Labyrinth dataset, Copyright 2017-2023 Tim Pfeifer (TU Chemnitz), CC BY-SA 4.0, distributed with libRSF")
+    _compiling(f"reading the log, compiling and running {len(algorithms)} algorithm(s)…")
+    seq, results = xp.run_study(algorithms, runs=args.runs, seed=args.seed, root=args.data)
+    print(
+        f"{seq.times.size} steps over {seq.times[-1] - seq.times[0]:.1f} s, one range per step, {seq.anchors.shape[0]} anchors"
+    )
+    if args.out:
+        _write_plot(lambda path: xp.plot_study(seq, results, path), args.out)
+    print(xp.format_table(results))
     return 0
 
 
@@ -570,11 +595,12 @@ def _add_mrclam_command(sub) -> None:
         "mrclam",
         "the filters of [A] ch. 2 on the real UTIAS MRCLAM dataset",
         f"""\
-Dead reckoning, EKF and UKF localization, MCL with the known map, EKF-SLAM and FastSLAM 1.0 and
-2.0 ([A] ch. 2) on the real logs of the UTIAS MRCLAM dataset 7 (Leung et al., IJRR 30(8), 2011):
-the odometry of five robots and their range-bearing measurements of barcoded landmarks, with a
-Vicon ground truth. Prints, for each robot and filter, the position and heading RMSE, the ATE, the
-landmark RMSE of the SLAM filters and the time taken, and draws a PNG per robot (needs matplotlib).
+Dead reckoning, EKF and UKF localization, MCL with the known map, EKF-SLAM, FastSLAM 1.0 and 2.0
+([A] ch. 2), and PF-SLAM and PS-SLAM ([W], a particle set per landmark) on the real logs of the
+UTIAS MRCLAM dataset 7 (Leung et al., IJRR 30(8), 2011): the odometry of five robots and their
+range-bearing measurements of barcoded landmarks, with a Vicon ground truth. Prints, for each
+robot and filter, the position and heading RMSE, the ATE, the landmark RMSE of the SLAM filters
+and the time taken, and draws a PNG per robot (needs matplotlib).
 
 {_DATA.format(folder="utias-mrclam-dataset7", source="http://asrl.utias.utoronto.ca/datasets/mrclam/")}""",
         _examples(
@@ -604,6 +630,41 @@ landmark RMSE of the SLAM filters and the time taken, and draws a PNG per robot 
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
     mr.set_defaults(func=_cmd_mrclam)
+
+
+def _add_uwb_command(sub) -> None:
+    """``jaxnav uwb``: range-only localization and SLAM on real UWB ranges."""
+    uw = _command(
+        sub,
+        "uwb",
+        "range-only localization and SLAM on the real TU Chemnitz UWB ranges",
+        f"""\
+Dead reckoning from the wheel speeds, MCL with the four surveyed anchors (Gaussian and Student-t
+ranges with a bias) and range-only PF-SLAM and PS-SLAM with the anchors unknown (a particle set per
+anchor, started on the ring of its first range), on the TU Chemnitz "Labyrinth" log: a
+differential-drive robot ranging one UWB anchor per step, with a ground-truth path. Prints, per
+algorithm, the mean position error and (SLAM) the anchors' mean error over --runs seeded runs,
+and draws a PNG (needs matplotlib).
+
+{_DATA.format(folder="tuc-labyrinth-uwb", source="https://github.com/TUC-ProAut/libRSF (datasets/Indoor_UWB)")}""",
+        _examples(
+            ("every algorithm, 10 runs each; writes jaxnav-uwb.png", "jaxnav uwb"),
+            (
+                "MCL with Student-t ranges and range-only PF-SLAM, 3 runs, no PNG",
+                "jaxnav uwb --algorithms mcl_t,pf_slam --runs 3 --out ''",
+            ),
+        ),
+    )
+    uw.add_argument(
+        "--algorithms",
+        default=",".join(UWB_ALGORITHMS),
+        help=f"comma-separated subset of {','.join(UWB_ALGORITHMS)} (default all)",
+    )
+    uw.add_argument("--runs", type=_positive_int, default=10, help="seeded runs of each particle filter (default 10)")
+    uw.add_argument("--seed", type=_seed, default=0, help="seed of the particle filters (default 0)")
+    uw.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
+    uw.add_argument("--out", default="jaxnav-uwb.png", help="PNG to write ('' for none; default jaxnav-uwb.png)")
+    uw.set_defaults(func=_cmd_uwb)
 
 
 def _add_hf_slam_command(sub) -> None:
@@ -849,6 +910,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_demo_command(sub)
     _add_mrclam_command(sub)
+    _add_uwb_command(sub)
     _add_hf_slam_command(sub)
     _add_ir_command(sub)
     _add_uhf_real_command(sub)

@@ -65,6 +65,13 @@ def test_mrclam_algorithm_list_matches_the_experiment():
     assert MRCLAM_ALGORITHMS == ALGORITHMS
 
 
+def test_uwb_algorithm_list_matches_the_experiment():
+    from jaxnav.cli import UWB_ALGORITHMS
+    from jaxnav.experiments.uwb import ALGORITHMS
+
+    assert UWB_ALGORITHMS == ALGORITHMS
+
+
 def test_hf_slam_choices_match_the_experiment():
     from jaxnav.cli import HF_METHODS, HF_TRAJECTORIES
     from jaxnav.experiments.hf_slam import METHODS, TRAJECTORIES

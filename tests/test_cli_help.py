@@ -15,7 +15,7 @@ import pytest
 
 from jaxnav import cli
 
-COMMANDS = ("demo", "mrclam", "hf-slam", "ir", "uhf-real", "experiments")
+COMMANDS = ("demo", "mrclam", "uwb", "hf-slam", "ir", "uhf-real", "experiments")
 
 
 def _help(argv, capsys) -> str:

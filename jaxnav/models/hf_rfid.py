@@ -61,8 +61,10 @@ from jaxnav.core.validation import (
     first_index,
     is_concrete,
 )
+from jaxnav.models.sensor import LandmarkSensor
 
 __all__ = [
+    "HF_TAG_SENSOR",
     "HFReaderParams",
     "TagDetections",
     "ReaderObservations",
@@ -291,6 +293,51 @@ def sample_in_footprint(
     of a robot at ``pose`` ([W] Alg. 1 line 7: a new tag's particles)."""
     u = rng.uniform(key, (num, 2), pose.dtype, -1.0, 1.0) * half_width
     return world_frame(pose, reader_offset + u)
+
+
+def slot_offsets(detections: TagDetections, params: HFReaderParams) -> jax.Array:
+    """``[K, 2]`` the detecting reader's offset per slot (m, robot frame); a reader index out of range
+    (refused on the host) is clipped."""
+    return params.offsets[jnp.clip(detections.readers, 0, params.offsets.shape[0] - 1)]
+
+
+def _sample_tag(
+    key: jax.Array, pose: jax.Array, reader_offset: jax.Array, params: HFReaderParams, num: int
+) -> jax.Array:
+    return sample_in_footprint(key, pose, reader_offset, params.half_width, num)
+
+
+def locate_robot(
+    u: jax.Array, heading: jax.Array, tags: jax.Array, reader_offsets: jax.Array, params: HFReaderParams
+) -> jax.Array:
+    """``[N, 2]`` robot positions that put tag ``tags[n]`` under the reader at ``reader_offsets[n]`` of a
+    robot of ``heading [N]``, at the point ``(2u − 1)·σ`` of its footprint (``u [N, 2]`` uniform):
+    ``tag = p + R(θ)(offset + point)``, so ``p = tag − R(θ)(offset + point)``."""
+    n = heading.shape[0]
+    body = reader_offsets + (2.0 * u - 1.0) * params.half_width
+    rotation_only = jnp.concatenate([jnp.zeros((n, 2), heading.dtype), heading[:, None]], axis=1)
+    return tags - world_frame(rotation_only, body)
+
+
+def _check_detections(det: TagDetections, time_axis: bool, params: HFReaderParams, name: str) -> None:
+    validate_detections(det, time_axis, params.num_readers, name)
+
+
+HF_TAG_SENSOR = LandmarkSensor(
+    "hf_tag",
+    2,
+    slot_offsets,
+    tag_log_likelihood,
+    robot_log_likelihood,
+    _sample_tag,
+    locate=locate_robot,
+    check_params=validate_params,
+    check_observations=_check_detections,
+    params_in_domain=reader_params_in_domain,
+)
+"""HF-RFID tag detections as a landmark sensor ([W] eq. 3.7; PF-SLAM's and PS-SLAM's default):
+observations :class:`TagDetections`, sensor parameters :class:`HFReaderParams`. A new tag's particles
+are uniform over the first detecting reader's footprint ([W] Alg. 1 line 7)."""
 
 
 # ---------------------------------------------------------------------------

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath
+from jaxnav.core import fastmath, rng
 from jaxnav.core.validation import (
     MAX_MAGNITUDE,
     all_positive,
@@ -39,7 +39,7 @@ from jaxnav.core.validation import (
 )
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import motion
-from jaxnav.models.sensor import ParticleSensor
+from jaxnav.models.sensor import LandmarkSensor, ParticleSensor
 
 __all__ = [
     "check_filter_inputs",
@@ -58,6 +58,8 @@ __all__ = [
     "noise_in_domain",
     "filter_inputs_in_domain",
     "RANGE_BEARING_SENSOR",
+    "log_density",
+    "RANGE_BEARING_LANDMARK_SENSOR",
 ]
 
 
@@ -331,3 +333,68 @@ the default sensor of MCL and its variants: observations :class:`RangeBearingObs
 fields ``sensor`` (:class:`RangeBearingNoise`) and ``landmarks`` (``[M, 2]``, m), as in
 :class:`LandmarkMapParams`. A slot whose id is outside the map, or whose ``z`` is unusable, is dropped
 and counted (:func:`lookup`)."""
+
+
+# --------------------------------------------------------------------------- the landmark-sensor instance
+
+
+def log_density(poses: jax.Array, landmarks: jax.Array, z: jax.Array, params: RangeBearingNoise) -> jax.Array:
+    """``log N(z; h(x, m), diag(σ_r², σ_φ²))`` of one measurement ``z [2]`` for poses ``[..., 3]`` and
+    landmarks ``[..., 2]`` (broadcasting: many poses and one landmark, or one pose and many landmarks),
+    the bearing residual wrapped to ``[-π, π)``."""
+    pred = predict(poses, landmarks)
+    resid_r = z[0] - pred[..., 0]
+    resid_b = wrap_angle(z[1] - pred[..., 1])
+    sd = params.sd
+    log_norm = -jnp.log(sd[0]) - jnp.log(sd[1]) - math.log(2.0 * math.pi)
+    return log_norm - 0.5 * ((resid_r / sd[0]) ** 2 + (resid_b / sd[1]) ** 2)
+
+
+def _landmark_log_likelihood(
+    landmarks: jax.Array, pose: jax.Array, z: jax.Array, params: RangeBearingNoise
+) -> jax.Array:
+    return log_density(pose, landmarks, z, params)
+
+
+def _initialise(key: jax.Array, pose: jax.Array, z: jax.Array, params: RangeBearingNoise, num: int) -> jax.Array:
+    """``[num, 2]`` landmark particles ``h⁻¹(x, z + ε)``, ``ε ~ N(0, diag(σ²))``: the measurement's
+    noise carried to the floor, a wedge around the measured point (the posterior of a landmark
+    seen once, up to the Jacobian ``r`` of the polar map)."""
+    noisy = z + rng.normal(key, (num, 2), pose.dtype) * params.sd
+    return inverse(pose, noisy)
+
+
+def _locate(
+    u: jax.Array, heading: jax.Array, landmarks: jax.Array, z: jax.Array, params: RangeBearingNoise
+) -> jax.Array:
+    """``[N, 2]`` robot positions that see ``landmarks [N, 2]`` at ``z [N, 2]`` with ``heading [N]``,
+    the range and bearing moved by a uniform error of their noise's standard deviation (``u [N, 2]``)."""
+    spread = (2.0 * u - 1.0) * math.sqrt(3.0) * params.sd  # uniform of standard deviation σ
+    r = z[:, 0] + spread[:, 0]
+    direction = heading + z[:, 1] + spread[:, 1]
+    return landmarks - r[:, None] * jnp.stack([jnp.cos(direction), jnp.sin(direction)], axis=-1)
+
+
+def _slam_check_observations(obs: RangeBearingObs, time_axis: bool, params: RangeBearingNoise, name: str) -> None:
+    if not isinstance(obs, RangeBearingObs):
+        raise ValueError(f"{name} must be a RangeBearingObs, got {type(obs).__name__}")
+    validate_observations(obs, time_axis)
+
+
+RANGE_BEARING_LANDMARK_SENSOR = LandmarkSensor(
+    "range_bearing",
+    2,
+    lambda obs, params: obs.z,
+    _landmark_log_likelihood,
+    log_density,
+    _initialise,
+    locate=_locate,
+    check_params=validate_noise,
+    check_observations=_slam_check_observations,
+    params_in_domain=noise_in_domain,
+    usable=lambda obs: usable_measurements(obs.z),
+)
+"""Range-bearing observations of unknown point landmarks as a :class:`~jaxnav.models.sensor.LandmarkSensor`
+for PF-SLAM and PS-SLAM: observations :class:`RangeBearingObs` (``ids`` index the filter's table),
+sensor parameters :class:`RangeBearingNoise`. A new landmark's particles are spread over the range
+and bearing noise of its first measurement (:func:`log_density` is the density)."""

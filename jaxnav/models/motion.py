@@ -26,7 +26,12 @@ model               control ``u``                             reference
 ``odometry``        ``(x̄, ȳ, θ̄, x̄', ȳ', θ̄')`` odometry poses  Thrun et al. Tab. 5.6
 ``omni``            ``(v_x, v_y, ω, Δt)``, world frame        [W] eq. 3.6
 ``omni_body``       ``(v_x, v_y, ω, Δt)``, robot frame        [W] eq. 3.6, rotated
+differential drive  ``(v_right, v_left, Δt)`` wheel speeds    :func:`differential_drive`
 ==================  ========================================  =====================
+
+The differential-drive model is built for a wheel base (``differential_drive(0.0785)``); it moves
+along the velocity model's arc with ``v = (v_r + v_l)/2`` and ``ω = (v_r − v_l)/b``, the noise in
+the wheel speeds.
 
 Robots localised in 3-D, with poses ``(x, y, z, φ)``, move by an odometry increment
 ``dX = (dx, dy, dz, dφ)`` plus Gaussian noise ([A] App. F Alg. 8): :func:`increment_sample`
@@ -41,6 +46,7 @@ benchmark workload W2 states its noise.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -65,6 +71,7 @@ __all__ = [
     "VelocityNoise",
     "OdometryNoise",
     "OmniNoise",
+    "WheelNoise",
     "MotionModel",
     "VELOCITY",
     "ODOMETRY",
@@ -89,6 +96,7 @@ __all__ = [
     "omni_process_cov",
     "omni_body_process_cov",
     "MODELS",
+    "differential_drive",
     "get_motion_model",
     "validate_noise",
     "validate_controls",
@@ -134,6 +142,18 @@ class OmniNoise(NamedTuple):
     """
 
     sd: jax.Array
+
+
+class WheelNoise(NamedTuple):
+    """Noise of the differential-drive model.
+
+    Attributes:
+        sd: ``[2]`` standard deviations of the right and left wheel speeds (m/s).
+        pose_sd: ``[3]`` additive pose noise per step (m, m, rad).
+    """
+
+    sd: jax.Array
+    pose_sd: jax.Array
 
 
 # ---------------------------------------------------------------------------
@@ -461,6 +481,48 @@ OMNI_BODY = MotionModel(
     "omni_body", 4, omni_body_mean, omni_body_sample, OmniNoise, _validate_omni, omni_body_process_cov, 3
 )
 """The omnidirectional model whose control ``(v_x, v_y, ω, Δt)`` has its velocity in the robot frame."""
+
+# ---------------------------------------------------------------------------
+# differential drive: wheel speeds
+
+
+def _wheel_arc(pose: jax.Array, right: jax.Array, left: jax.Array, dt: jax.Array, wheel_base: float) -> jax.Array:
+    return _arc(pose, 0.5 * (right + left), (right - left) / wheel_base, jnp.zeros_like(right), dt)
+
+
+def _validate_wheels(params: WheelNoise) -> None:
+    check_shape("motion noise sd", params.sd, (2,))
+    check_shape("motion noise pose_sd", params.pose_sd, (3,))
+    _check_noise_values(sd=params.sd, pose_sd=params.pose_sd)
+
+
+@functools.cache
+def differential_drive(wheel_base: float) -> MotionModel:
+    """The differential-drive model of a robot whose wheels are ``wheel_base`` metres apart: control
+    ``(v_right [m/s], v_left [m/s], Δt [s])``, noise :class:`WheelNoise`. The pose moves along the arc
+    of the velocity model (Thrun et al. eq. 5.9) with ``v = (v_r + v_l)/2`` and ``ω = (v_r − v_l)/b``;
+    ``sample`` draws each wheel's speed ``v + N(0, σ²)``, then adds the pose noise. Cached: one wheel
+    base gives one (hashable) model, so a filter's configuration with it compiles once."""
+    if not (isinstance(wheel_base, (int, float)) and np.isfinite(wheel_base) and wheel_base > 0):
+        raise ValueError(f"wheel_base must be a positive number of metres, got {wheel_base!r}")
+    b = float(wheel_base)
+
+    def mean(pose: jax.Array, control: jax.Array, params: WheelNoise | None = None) -> jax.Array:
+        del params
+        return _wheel_arc(pose, control[..., 0], control[..., 1], control[..., 2], b)
+
+    def sample(key: jax.Array, poses: jax.Array, control: jax.Array, params: WheelNoise) -> jax.Array:
+        k_wheels, k_pose = jax.random.split(key)
+        eps = _standard_normal_unless_zero(k_wheels, poses.shape[:-1] + (2,), poses.dtype, params.sd) * params.sd
+        moved = _wheel_arc(poses, control[..., 0] + eps[..., 0], control[..., 1] + eps[..., 1], control[..., 2], b)
+        return _add_pose_noise(k_pose, moved, params.pose_sd)
+
+    def process_cov(pose: jax.Array, control: jax.Array, params: WheelNoise) -> jax.Array:
+        g = lambda u: _wheel_arc(pose, u[0], u[1], control[2], b)  # noqa: E731
+        return _linearised_cov(g, control[:2], params.sd**2) + jnp.diag(params.pose_sd**2)
+
+    return MotionModel(f"differential_drive({b:g} m)", 3, mean, sample, WheelNoise, _validate_wheels, process_cov, 2)
+
 
 MODELS: dict[str, MotionModel] = {m.name: m for m in (VELOCITY, ODOMETRY, OMNI, OMNI_BODY)}
 """The built-in motion models by name (``"velocity"``, ``"odometry"``, ``"omni"``, ``"omni_body"``; table in

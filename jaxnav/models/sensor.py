@@ -1,4 +1,8 @@
-"""The sensor seam of the particle filters over poses: one protocol for every sensor.
+"""The sensor seam of the particle filters: one protocol for the filters over poses, one for landmarks.
+
+Pose filters (MCL and its variants) take a :class:`ParticleSensor`; the SLAM filters that keep a
+particle set per landmark (PF-SLAM, PS-SLAM) take a :class:`LandmarkSensor` (at the end of this
+module).
 
 **Overview**
 
@@ -56,6 +60,8 @@ from jaxnav.models import motion
 __all__ = [
     "ParticleSensor",
     "check_sensor",
+    "LandmarkSensor",
+    "check_landmark_sensor",
     "check_pose_filter_params",
     "check_pose_filter_inputs",
     "pose_filter_inputs_in_domain",
@@ -162,3 +168,79 @@ def prepare_pose_filter_inputs(config: Any, control: Any, observation: Any) -> t
     ``prepare`` of the observation."""
     control, observation = filter_api.promote_half_precision(config, control, observation)
     return control, config.sensor.prepare(observation)
+
+
+# --------------------------------------------------------------------------- landmark sensors
+
+
+def _all_usable(observation: Any) -> jax.Array:
+    return jnp.ones(jnp.shape(observation.mask), bool)
+
+
+class LandmarkSensor(NamedTuple):
+    """A landmark sensor for the SLAM filters that keep a particle set per landmark (PF-SLAM and
+    PS-SLAM, :mod:`jaxnav.slam.tag_slam`): the density ``p(z | x, m)`` of one observation ``z`` of a
+    landmark ``m`` (``[D]``, world frame) from a robot pose ``x`` (``[3]``), seen from either side,
+    and how a landmark first seen is placed.
+
+    One step's observation is a NamedTuple of ``K`` slots with fields ``ids [K]`` (the landmark, an
+    index of the filter's table), ``mask [K]`` (the slot holds an observation) and the sensor's own
+    fields. ``sensor_params`` below is the filter's ``params.sensor`` (differentiable).
+
+    Attributes:
+        name: label used in messages.
+        landmark_dim: ``D``, the size of a landmark's state (2 for a point on the floor).
+        measurements: ``(observation, sensor_params) -> z`` the slots' measurements, every leaf
+            ``[K, ...]`` (HF: the detecting reader's offset; range and bearing: ``(r, φ)``), traceable.
+        landmark_log_likelihood: ``(landmarks [J, D], pose [3], z_k, sensor_params) -> [J]``:
+            ``log p(z_k | x, m_j)`` for one slot's ``z_k`` (a landmark's particles weighted).
+        robot_log_likelihood: ``(poses [I, 3], landmark [D], z_k, sensor_params) -> [I]``: the same
+            density with the roles swapped (robot particles weighted against a landmark estimate).
+        initialise: ``(key, pose [3], z_k, sensor_params, num) -> [num, D]``: a new landmark's
+            particles drawn from ``p(m | x, z_k)`` with a flat prior on ``m`` (a footprint, a ring, a
+            range-bearing wedge).
+        locate: ``(u [N, 2], heading [N], landmarks [N, D], z [N, ...], sensor_params) -> [N, 2]``:
+            the robot position that puts landmark ``n`` at measurement ``z_n`` for a robot of that
+            heading, two uniforms ``u`` on ``[0, 1)`` drawing what the measurement leaves free (the
+            point of a footprint, the angle on a ring). Used by the kidnapping recovery; ``None``: the
+            sensor cannot place the robot, and the filter needs ``recovery=False``.
+        check_params: ``(sensor_params, argument) -> None``, host-side, raises ``ValueError`` naming
+            ``argument`` (e.g. ``"params.sensor"``).
+        check_observations: ``(observation, time_axis, sensor_params, name) -> None``, host-side: one
+            step's slots (``time_axis=False``) or a sequence's ``[T, K, ...]``, raises ``ValueError``
+            naming ``name``.
+        params_in_domain: ``(sensor_params) -> bool[]``, the value checks of ``check_params`` as a
+            traceable expression (``info.invalid_inputs`` inside a caller's ``jit``).
+        usable: ``(observation) -> bool [K]``, traceable: the slot's measurement can be scored (for
+            example finite); a set slot that is not is dropped and counted in ``info.num_ignored``.
+    """
+
+    name: str
+    landmark_dim: int
+    measurements: Callable[[Any, Any], Any]
+    landmark_log_likelihood: Callable[[jax.Array, jax.Array, Any, Any], jax.Array]
+    robot_log_likelihood: Callable[[jax.Array, jax.Array, Any, Any], jax.Array]
+    initialise: Callable[[jax.Array, jax.Array, Any, Any, int], jax.Array]
+    locate: Callable[..., jax.Array] | None = None
+    check_params: Callable[[Any, str], None] = _no_check
+    check_observations: Callable[[Any, bool, Any, str], None] = _no_check
+    params_in_domain: Callable[[Any], jax.Array] = _always_in_domain
+    usable: Callable[[Any], jax.Array] = _all_usable
+
+    def __repr__(self) -> str:
+        return f"LandmarkSensor({self.name!r})"
+
+
+def check_landmark_sensor(name: str, sensor: object) -> None:
+    """Configuration check: ``sensor`` is a :class:`LandmarkSensor` whose functions are callable and
+    whose ``landmark_dim`` is a positive integer."""
+    if not isinstance(sensor, LandmarkSensor):
+        raise ValueError(f"{name} must be a jaxnav.models.sensor.LandmarkSensor, got {type(sensor).__name__}")
+    if not isinstance(sensor.landmark_dim, int) or isinstance(sensor.landmark_dim, bool) or sensor.landmark_dim < 1:
+        raise ValueError(
+            f"{name}.landmark_dim of sensor {sensor.name!r} must be a positive int, got {sensor.landmark_dim!r}"
+        )
+    for field in LandmarkSensor._fields[2:]:
+        value = getattr(sensor, field)
+        if not (callable(value) or (field == "locate" and value is None)):
+            raise ValueError(f"{name}.{field} of sensor {sensor.name!r} must be callable")

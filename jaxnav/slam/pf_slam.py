@@ -1,4 +1,5 @@
-"""PF-SLAM ([W] Alg. 1): a particle filter for the robot and an independent particle filter per RFID tag.
+"""PF-SLAM ([W] Alg. 1): a particle filter for the robot and an independent particle filter per RFID tag
+(or per landmark of any :class:`~jaxnav.models.sensor.LandmarkSensor`, ``PFSLAMConfig.sensor``).
 
 **Overview**
 
@@ -49,7 +50,6 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import memory, resampling, weights
-from jaxnav.models import hf_rfid
 from jaxnav.slam import tag_slam
 from jaxnav.slam.tag_slam import SLAMInfo, check_capacity
 
@@ -78,20 +78,21 @@ class PFSLAMParams(NamedTuple):
 
     Attributes:
         motion: noise of the motion model (``OmniNoise(sd [3])`` for [W] eq. 3.6; m/s, m/s, rad/s).
-        sensor: :class:`jaxnav.models.hf_rfid.HFReaderParams` (reader offsets, σ, log β).
+        sensor: the parameters of ``config.sensor``: :class:`jaxnav.models.hf_rfid.HFReaderParams`
+            (reader offsets, σ, log β) for the default HF readers.
     """
 
     motion: Any
-    sensor: hf_rfid.HFReaderParams
+    sensor: Any
 
 
 class TagTable(NamedTuple):
     """Every tag's particle filter, indexed by tag ID (leading axis ``max_tags``).
 
     Attributes:
-        particles: ``[max_tags, J, 2]`` tag particles in the world frame (m).
+        particles: ``[max_tags, J, D]`` tag particles in the world frame (m; ``D = 2`` for points).
         log_weights: ``[max_tags, J]`` normalised.
-        estimates: ``[max_tags, 2]`` weighted mean of each tag's particles (m).
+        estimates: ``[max_tags, D]`` weighted mean of each tag's particles (m).
         counts: ``[max_tags]`` int32, steps in which the tag was detected (0 = never seen).
     """
 
@@ -116,19 +117,19 @@ class PFSLAMState(NamedTuple):
 
 
 def _empty_table(config: PFSLAMConfig, dtype) -> TagTable:
-    t, j = config.max_tags, config.num_tag_particles
+    t, j, d = config.max_tags, config.num_tag_particles, config.sensor.landmark_dim
     return TagTable(
-        jnp.zeros((t, j, 2), dtype),
+        jnp.zeros((t, j, d), dtype),
         jnp.full((t, j), -np.log(j), dtype),
-        jnp.zeros((t, 2), dtype),
+        jnp.zeros((t, d), dtype),
         jnp.zeros((t,), jnp.int32),
     )
 
 
-def _propose(key, row: TagTable, is_new, pose_est, init_offset, config, params):
+def _propose(key, row: TagTable, is_new, pose_est, init_z, config, params):
     """[W] Alg. 1 lines 6–11: a new tag's particles uniform over the initialising footprint, or the row's."""
     j = config.num_tag_particles
-    fresh = hf_rfid.sample_in_footprint(jax.random.fold_in(key, 0), pose_est, init_offset, params.sensor.half_width, j)
+    fresh = config.sensor.initialise(jax.random.fold_in(key, 0), pose_est, init_z, params.sensor, j)
     particles = jnp.where(is_new, fresh, row.particles)
     log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
     return particles, log_w
@@ -153,8 +154,8 @@ TAG_MODEL = tag_slam.TagModel(_propose, _finish)
 
 
 def _table_shapes(config: PFSLAMConfig) -> dict[str, tuple[int, ...]]:
-    t, j = config.max_tags, config.num_tag_particles
-    return {"particles": (t, j, 2), "log_weights": (t, j), "estimates": (t, 2), "counts": (t,)}
+    t, j, d = config.max_tags, config.num_tag_particles, config.sensor.landmark_dim
+    return {"particles": (t, j, d), "log_weights": (t, j), "estimates": (t, d), "counts": (t,)}
 
 
 def _validate_params(config: PFSLAMConfig, params: PFSLAMParams) -> None:
@@ -178,7 +179,7 @@ def kernel(
     config: PFSLAMConfig,
     params: PFSLAMParams,
     control: jax.Array,
-    detections: hf_rfid.TagDetections,
+    detections: Any,
 ) -> tuple[PFSLAMState, SLAMInfo]:
     """One PF-SLAM step ([W] Alg. 1), pure and traceable (:func:`step` is it validated and jitted).
 

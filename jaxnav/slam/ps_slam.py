@@ -1,4 +1,5 @@
-"""PS-SLAM ([W] Alg. 2): a particle filter for the robot and a fixed-lag particle smoother per RFID tag.
+"""PS-SLAM ([W] Alg. 2): a particle filter for the robot and a fixed-lag particle smoother per RFID tag
+(or per landmark of any :class:`~jaxnav.models.sensor.LandmarkSensor`, ``PSSLAMConfig.sensor``).
 
 **Overview**
 
@@ -88,13 +89,14 @@ class PSSLAMParams(NamedTuple):
 
     Attributes:
         motion: motion-model noise (``OmniNoise`` for [W] eq. 3.6).
-        sensor: :class:`jaxnav.models.hf_rfid.HFReaderParams`.
+        sensor: the parameters of ``config.sensor`` (:class:`jaxnav.models.hf_rfid.HFReaderParams` for
+            the default HF readers).
         tag_jitter_sd: standard deviation of the Gaussian move of a tag particle at each re-detection
             ([W] Alg. 2 line 11; m). [W] gives no value; ``default_jitter`` is σ/10.
     """
 
     motion: Any
-    sensor: hf_rfid.HFReaderParams
+    sensor: Any
     tag_jitter_sd: jax.Array
 
 
@@ -107,12 +109,12 @@ class SmootherTable(NamedTuple):
     """Every tag's fixed-lag smoother, indexed by tag ID.
 
     Attributes:
-        particles: ``[max_tags, J, 2]`` current tag particles (m).
+        particles: ``[max_tags, J, D]`` current tag particles (m; ``D = 2`` for points).
         log_weights: ``[max_tags, J]`` normalised.
-        estimates: ``[max_tags, 2]`` smoothed estimate: weighted mean of the ring means (m).
+        estimates: ``[max_tags, D]`` smoothed estimate: weighted mean of the ring means (m).
         counts: ``[max_tags]`` int32 detection count; the ring holds ``min(count, L)`` states and
             its next slot is ``count mod L``.
-        history: ``[max_tags, L, J, 2]`` the rings of past states (m).
+        history: ``[max_tags, L, J, D]`` the rings of past states (m).
     """
 
     particles: jax.Array
@@ -131,20 +133,20 @@ class PSSLAMState(NamedTuple):
 
 
 def _empty_table(config: PSSLAMConfig, dtype) -> SmootherTable:
-    t, j, lag = config.max_tags, config.num_tag_particles, config.lag
+    t, j, lag, d = config.max_tags, config.num_tag_particles, config.lag, config.sensor.landmark_dim
     return SmootherTable(
-        jnp.zeros((t, j, 2), dtype),
+        jnp.zeros((t, j, d), dtype),
         jnp.full((t, j), -np.log(j), dtype),
-        jnp.zeros((t, 2), dtype),
+        jnp.zeros((t, d), dtype),
         jnp.zeros((t,), jnp.int32),
-        jnp.zeros((t, lag, j, 2), dtype),
+        jnp.zeros((t, lag, j, d), dtype),
     )
 
 
-def _propose(key, row: SmootherTable, is_new, pose_est, init_offset, config, params):
+def _propose(key, row: SmootherTable, is_new, pose_est, init_z, config, params):
     """[W] Alg. 2 lines 6–11: a new tag's particles over the initialising footprint, or the row's moved by the jitter."""
     j = config.num_tag_particles
-    fresh = hf_rfid.sample_in_footprint(jax.random.fold_in(key, 0), pose_est, init_offset, params.sensor.half_width, j)
+    fresh = config.sensor.initialise(jax.random.fold_in(key, 0), pose_est, init_z, params.sensor, j)
     noise = rng.normal(jax.random.fold_in(key, 2), row.particles.shape, row.particles.dtype)
     particles = jnp.where(is_new, fresh, row.particles + params.tag_jitter_sd * noise)
     log_w = jnp.where(is_new, jnp.full_like(row.log_weights, -np.log(j)), row.log_weights)
@@ -175,13 +177,13 @@ TAG_MODEL = tag_slam.TagModel(_propose, _finish)
 
 
 def _table_shapes(config: PSSLAMConfig) -> dict[str, tuple[int, ...]]:
-    t, j = config.max_tags, config.num_tag_particles
+    t, j, d = config.max_tags, config.num_tag_particles, config.sensor.landmark_dim
     return {
-        "particles": (t, j, 2),
+        "particles": (t, j, d),
         "log_weights": (t, j),
-        "estimates": (t, 2),
+        "estimates": (t, d),
         "counts": (t,),
-        "history": (t, config.lag, j, 2),
+        "history": (t, config.lag, j, d),
     }
 
 
@@ -202,9 +204,7 @@ def init(
     return PSSLAMState(poses, log_w, _empty_table(config, poses.dtype))
 
 
-def _inputs_in_domain(
-    config: PSSLAMConfig, params: PSSLAMParams, control: jax.Array, detections: hf_rfid.TagDetections
-) -> jax.Array:
+def _inputs_in_domain(config: PSSLAMConfig, params: PSSLAMParams, control: jax.Array, detections: Any) -> jax.Array:
     """``bool[]``: :func:`jaxnav.slam.tag_slam.inputs_in_domain` and a tag jitter ``≥ 0`` m."""
     return tag_slam.inputs_in_domain(config, params, control, detections) & all_nonnegative(params.tag_jitter_sd)
 
@@ -215,7 +215,7 @@ def kernel(
     config: PSSLAMConfig,
     params: PSSLAMParams,
     control: jax.Array,
-    detections: hf_rfid.TagDetections,
+    detections: Any,
 ) -> tuple[PSSLAMState, SLAMInfo]:
     """One PS-SLAM step ([W] Alg. 2), pure and traceable (:func:`step` is it validated and jitted).
 

@@ -9,6 +9,13 @@ row type (a NamedTuple of one tag's arrays, with fields ``estimates`` and
 ``finish`` the update); the tag table is the same row type with a leading
 ``max_tags`` axis, indexed by tag ID.
 
+The sensor is ``config.sensor``, a :class:`~jaxnav.models.sensor.LandmarkSensor`: [W]'s HF readers
+by default (:data:`~jaxnav.models.hf_rfid.HF_TAG_SENSOR`), or range and bearing
+(:data:`~jaxnav.models.landmarks.RANGE_BEARING_LANDMARK_SENSOR`), range-only beacons
+(:mod:`jaxnav.models.range_only`) or a user's own. Below, "tag" is any landmark, a "reader" the
+slot's measurement, "eq. 3.7" the sensor's density and "the footprint" where its ``initialise``
+places a new landmark's particles.
+
 One step, for ``K`` detection slots (ids, readers, mask):
 
 1. Robot particles move by the motion model ([W] Alg. 1 lines 2–4); the
@@ -30,7 +37,12 @@ One step, for ``K`` detection slots (ids, readers, mask):
    holds ([W] §3.3.1).
 5. Robot particles are weighted by [W] eq. 3.7 against the *updated*
    estimates of the re-detected tags (Alg. 1 lines 17–19), then resampled
-   (lines 21–24, conditional on the ESS; every step by default).
+   (lines 21–24, conditional on the ESS; every step by default). With
+   ``config.robot_likelihood = "mixture"`` they are weighted against each
+   re-detected tag's particle set *before* its update instead,
+   ``log Σ_j w_j Π_k p(z_k | x, m_j)`` over the group's slots ``k``: the
+   predictive density of the step's observations, right when a tag's set is
+   far from one point (a range-only ring), at ``K·I·J`` evaluations.
 
 Choices where [W] is silent (stated here, tested):
 
@@ -96,8 +108,11 @@ from jaxnav.models.motion import (
     validate_controls,
 )
 from jaxnav.models.motion import validate_noise as validate_motion_noise
+from jaxnav.models.sensor import LandmarkSensor, check_landmark_sensor
 
 _POSE_ANGLE_DIMS = (2,)
+ROBOT_LIKELIHOODS = ("estimate", "mixture")
+"""The choices of ``TagSLAMConfig.robot_likelihood``."""
 
 
 @jax.tree_util.register_dataclass
@@ -117,7 +132,7 @@ class SLAMInfo(PFInfo):
         num_new: tags initialised this step.
         num_updated: tags re-detected (updated) this step.
         slot_ids: ``[K]`` tag ID per slot, −1 for empty or dropped slots.
-        slot_estimates: ``[K, 2]`` the slot's tag estimate after the step (m).
+        slot_estimates: ``[K, D]`` the slot's tag estimate after the step (m).
         slot_counts: ``[K]`` the slot's tag detection count after the step.
         invalid_inputs: bool, the step's odometry or parameters were outside the models' domain (a
             negative Δt or noise level, a value that is not finite or exceeds
@@ -157,6 +172,16 @@ class TagSLAMConfig:
         recovery_log_likelihood: lost when the best robot particle averages below this per re-detection.
         recovery_heading_sd: ``None``: redrawn particles get a uniform heading (the robot may have
             been turned); a number: each keeps its own heading with a uniform error of this standard deviation (rad).
+        robot_likelihood: how the robot particles are weighted by a re-detected landmark:
+            ``"estimate"`` (default, [W] Alg. 1 lines 17–19): against the landmark's estimate after
+            its update; ``"mixture"``: against its particle set before the update, ``log Σ_j w_j
+            p(z | x, m_j)`` (the predictive density of the observation given the landmark's
+            posterior so far; ``K·I·J`` likelihoods instead of ``K·I``). Use ``"mixture"`` when a
+            landmark's particle set is far from one point: a range-only beacon seen from few places
+            lies on a ring or an arc whose mean is nowhere near it.
+        sensor: the landmark sensor (:class:`~jaxnav.models.sensor.LandmarkSensor`): its observations
+            are the filter's, its parameters ``params.sensor``. Default
+            :data:`~jaxnav.models.hf_rfid.HF_TAG_SENSOR`, [W]'s HF-RFID readers (the tags are the landmarks).
         parallel_slots: ``None`` (default): a step processes all ``K`` detection slots. A number
             ``L < K``: a step moves the valid slots to the front and processes the first ``L``,
             and all ``K`` only when more than ``L`` are valid, at the cost of ``L`` slots. The
@@ -181,6 +206,8 @@ class TagSLAMConfig:
     recovery_log_likelihood: float = -8.0
     recovery_heading_sd: float | None = None
     parallel_slots: int | None = None
+    robot_likelihood: str = "estimate"
+    sensor: LandmarkSensor = hf_rfid.HF_TAG_SENSOR
 
     def __post_init__(self) -> None:
         validate_common_config(self)
@@ -201,6 +228,13 @@ def validate_common_config(config: Any) -> None:
         raise ValueError(f"recovery_log_likelihood must be a negative number, got {config.recovery_log_likelihood!r}")
     if config.parallel_slots is not None:
         check_positive_int("parallel_slots", config.parallel_slots)
+    check_choice("robot_likelihood", config.robot_likelihood, ROBOT_LIKELIHOODS)
+    check_landmark_sensor("sensor", config.sensor)
+    if config.recovery and config.sensor.locate is None:
+        raise ValueError(
+            f"recovery=True needs a sensor that can place the robot from a landmark (its locate); "
+            f"sensor {config.sensor.name!r} has none: set recovery=False"
+        )
     sd = config.recovery_heading_sd
     if sd is not None and not (isinstance(sd, (int, float)) and np.isfinite(sd) and sd >= 0):
         raise ValueError(f"recovery_heading_sd must be None (uniform heading) or a number ≥ 0 rad, got {sd!r}")
@@ -216,11 +250,11 @@ def check_capacity(config: Any, num_tags: int) -> None:
 
 
 def validate_params(config: Any, params: Any, params_type: type) -> None:
-    """Host-side checks of a tag-SLAM filter's ``params``: its type, the motion noise and the reader model."""
+    """Host-side checks of a tag-SLAM filter's ``params``: its type, the motion noise and the sensor's parameters."""
     if not isinstance(params, params_type):
         raise ValueError(f"params must be a {params_type.__name__}, got {type(params).__name__}")
     validate_motion_noise(config.motion_model, params.motion)
-    hf_rfid.validate_params(params.sensor)
+    config.sensor.check_params(params.sensor, "params.sensor")
 
 
 def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, ...]]) -> None:
@@ -232,10 +266,10 @@ def validate_state(config: Any, state: Any, table_shapes: dict[str, tuple[int, .
 
 
 def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, time_axis: bool) -> None:
-    """Odometry of the configured motion model and :class:`~jaxnav.models.hf_rfid.TagDetections` of as many steps."""
+    """Odometry of the configured motion model and the sensor's observations of as many steps."""
     name = "controls" if time_axis else "control"
     validate_controls(name, controls, config.motion_model, time_axis)
-    hf_rfid.validate_detections(detections, time_axis, params.sensor.num_readers, "detections")
+    config.sensor.check_observations(detections, time_axis, params.sensor, "detections")
     if time_axis and np.shape(detections.ids)[0] != np.shape(controls)[0]:
         raise ValueError(
             f"controls and observations must have the same number of steps, got "
@@ -243,17 +277,17 @@ def validate_inputs(config: Any, params: Any, controls: Any, detections: Any, ti
         )
 
 
-def inputs_in_domain(config: Any, params: Any, control: jax.Array, detections: hf_rfid.TagDetections) -> jax.Array:
+def inputs_in_domain(config: Any, params: Any, control: jax.Array, detections: Any) -> jax.Array:
     """``bool[]``, traceable: the odometry and the motion noise in the motion model's domain
     (:func:`jaxnav.models.motion.controls_in_domain`, :func:`jaxnav.models.motion.noise_in_domain`)
-    and the reader model in its own (:func:`jaxnav.models.hf_rfid.reader_params_in_domain`): the value
+    and the sensor's parameters in its own (``config.sensor.params_in_domain``): the value
     checks of the host, as ``jnp``. The detections are not part of it (slots outside the table are
     dropped and counted)."""
     del detections
     return (
         controls_in_domain(control, config.motion_model)
         & noise_in_domain(config.motion_model, params.motion)
-        & hf_rfid.reader_params_in_domain(params.sensor)
+        & config.sensor.params_in_domain(params.sensor)
     )
 
 
@@ -276,16 +310,17 @@ def initial_particles(key: jax.Array, config: Any, initial_pose: Any, initial_sd
 # the step
 
 
-def _valid_slots(det: hf_rfid.TagDetections, max_tags: int):
-    """``(valid [K], dropped count)``: masked slots with an ID in the table, and the masked ones without."""
-    in_table = (det.ids >= 0) & (det.ids < max_tags)
+def _valid_slots(det: Any, max_tags: int, sensor: LandmarkSensor):
+    """``(valid [K], dropped count)``: masked slots with an ID in the table and a usable measurement
+    (``sensor.usable``), and the masked ones without."""
+    usable = (det.ids >= 0) & (det.ids < max_tags) & sensor.usable(det)
     mask = det.mask.astype(bool)  # an integer mask: nonzero = set (a bitwise & with 2 would drop it)
-    return mask & in_table, jnp.sum(mask & ~in_table).astype(jnp.int32)
+    return mask & usable, jnp.sum(mask & ~usable).astype(jnp.int32)
 
 
-def _slots(det: hf_rfid.TagDetections, max_tags: int):
+def _slots(det: Any, max_tags: int, sensor: LandmarkSensor):
     """Valid slots, safe IDs, same-tag groups ``[K, K]``, each slot's group leader, and dropped count."""
-    valid, num_ignored = _valid_slots(det, max_tags)
+    valid, num_ignored = _valid_slots(det, max_tags, sensor)
     ids = jnp.clip(det.ids, 0, max_tags - 1).astype(jnp.int32)
     same = valid[:, None] & valid[None, :] & (ids[:, None] == ids[None, :])
     first = jnp.argmax(same, axis=1).astype(jnp.int32)
@@ -293,18 +328,35 @@ def _slots(det: hf_rfid.TagDetections, max_tags: int):
     return valid, ids, same, first, leader, num_ignored
 
 
-def _robot_log_likelihood(poses, tag_estimates, offsets, mask, sensor) -> jax.Array:
-    """``[I]`` Σ over slots of [W] eq. 3.7 for robot particles against tag estimates ``[K, 2]``."""
-    ll = jax.vmap(lambda tag, off: hf_rfid.robot_log_likelihood(poses, tag, off, sensor))(tag_estimates, offsets)
+def _robot_log_likelihood(poses, tag_estimates, z, mask, sensor: LandmarkSensor, sensor_params) -> jax.Array:
+    """``[I]`` Σ over the slots in ``mask`` of the sensor's log-likelihood of the robot particles
+    against the landmark estimates ``[K, D]`` ([W] eq. 3.7 for HF tags)."""
+    ll = jax.vmap(lambda tag, zk: sensor.robot_log_likelihood(poses, tag, zk, sensor_params))(tag_estimates, z)
     return jnp.sum(jnp.where(mask[:, None], ll, 0.0), axis=0)
 
 
-def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.Array:
+def _robot_mixture_log_likelihood(poses, particles, log_w, z, same, leader, sensor, sensor_params) -> jax.Array:
+    """``[I]`` Σ over the groups of re-detected slots (``leader``: a group's first slot) of
+    ``log Σ_j w_j Π_{k ∈ group} p(z_k | x, m_j)``: each landmark's particle set ``[K, J, D]`` with
+    normalised log-weights ``[K, J]`` before its update, as a mixture (``robot_likelihood="mixture"``)."""
+    pair = jax.vmap(
+        lambda p, zk: jax.vmap(lambda pose: sensor.landmark_log_likelihood(p, pose, zk, sensor_params))(poses)
+    )(particles, z)  # [K, I, J]
+    k, i, j = pair.shape
+    joint = jnp.matmul(same.astype(pair.dtype), pair.reshape(k, i * j), precision=jax.lax.Precision.HIGHEST).reshape(
+        k, i, j
+    )
+    mix = jax.scipy.special.logsumexp(joint + log_w[:, None, :], axis=-1)  # [K, I]
+    return jnp.sum(jnp.where(leader[:, None], mix, 0.0), axis=0)
+
+
+def _recover(key, poses, tag_estimates, z, known, config, sensor_params) -> jax.Array:
     """Robot particles redrawn around the re-detected tags (kidnapping recovery; module docstring).
 
     One block of uniforms serves every draw: the slot (the ``⌊u·n⌋``-th of the ``n`` re-detected
     slots), the point in its footprint and the heading. Under ``vmap`` over runs the recovery is
     computed at every step (a ``cond`` becomes a select), so it is kept to 4 uniforms per particle.
+    The sensor's ``locate`` places the robot from the picked landmark and its slot's measurement.
     """
     n = poses.shape[0]
     u = rng.uniform(key, (n, 4), poses.dtype)
@@ -312,16 +364,13 @@ def _recover(key, poses, tag_estimates, offsets, known, config, sensor) -> jax.A
     rank = jnp.minimum(jnp.floor(u[:, 0] * num_known), num_known - 1)  # which re-detected slot
     pick = jnp.sum(jnp.cumsum(known)[None, :] <= rank[:, None], axis=1)  # its index among all slots
     pick = jnp.clip(pick, 0, known.shape[0] - 1)
-    foot = (2.0 * u[:, 1:3] - 1.0) * sensor.half_width
     if config.recovery_heading_sd is None:
         theta = (2.0 * u[:, 3] - 1.0) * jnp.pi
     else:
         spread = config.recovery_heading_sd * jnp.sqrt(3.0)  # uniform of that standard deviation
         theta = weights.wrap_angle(poses[:, 2] + (2.0 * u[:, 3] - 1.0) * spread)
-    body = offsets[pick] + foot
-    # tag = p + R(θ)·body  ⇒  p = tag − R(θ)·body
-    offset_world = hf_rfid.world_frame(jnp.concatenate([jnp.zeros((n, 2), poses.dtype), theta[:, None]], axis=1), body)
-    xy = tag_estimates[pick] - offset_world
+    picked_z = jax.tree_util.tree_map(lambda a: a[pick], z)
+    xy = config.sensor.locate(u[:, 1:3], theta, tag_estimates[pick], picked_z, sensor_params)
     return jnp.concatenate([xy, theta[:, None]], axis=1)
 
 
@@ -329,8 +378,9 @@ class TagModel(NamedTuple):
     """How one tag's estimator is updated, in two halves around the weighting.
 
     Attributes:
-        propose: ``(key, row, is_new, pose_est, init_offset, config, params) -> (particles [J, 2], log_weights [J])``:
-            a new tag's particles over the initialising footprint, or the row's (PS-SLAM: jittered).
+        propose: ``(key, row, is_new, pose_est, init_z, config, params) -> (particles [J, D], log_weights [J])``:
+            a new tag's particles drawn by the sensor from its first measurement ``init_z``
+            (``config.sensor.initialise``), or the row's (PS-SLAM: jittered).
         finish: ``(key, row, particles, log_weights, log_likelihood [J], is_new, config, params) -> row``:
             weight, resample, estimate.
     """
@@ -356,7 +406,7 @@ def slam_step(
     config: Any,
     params: Any,
     control: jax.Array,
-    det: hf_rfid.TagDetections,
+    det: Any,
     tag_model: TagModel,
     valid_inputs: Callable[..., jax.Array] = inputs_in_domain,
 ) -> tuple[Any, SLAMInfo]:
@@ -373,7 +423,7 @@ def slam_step(
     """
     ok = filter_api.inputs_in_domain(valid_inputs, config, params, control, det)
     det = at_least_one_slot(det)
-    det = hf_rfid.TagDetections(det.ids, det.readers, det.mask.astype(bool) & ok)
+    det = det._replace(mask=det.mask.astype(bool) & ok)
     num_slots = det.ids.shape[0]
     lanes = config.parallel_slots
     robot = (state.poses, state.log_weights)
@@ -396,12 +446,12 @@ def slam_step(
     return state._replace(poses=poses, log_weights=log_weights, tags=tags), filter_api.flag_invalid_inputs(res.info, ok)
 
 
-def _compact(det: hf_rfid.TagDetections, max_tags: int, lanes: int):
+def _compact(det: Any, max_tags: int, lanes: int, sensor: LandmarkSensor):
     """The valid slots moved to the front, in their order: ``(order [L], detections [L], num_valid,
     num_ignored)`` (the compacted slots past the valid ones are masked)."""
-    valid, num_ignored = _valid_slots(det, max_tags)
+    valid, num_ignored = _valid_slots(det, max_tags, sensor)
     order = jnp.argsort(~valid, stable=True)[:lanes].astype(jnp.int32)
-    small = hf_rfid.TagDetections(det.ids[order], det.readers[order], valid[order])
+    small = jax.tree_util.tree_map(lambda a: a[order], det)._replace(mask=valid[order])
     return order, small, jnp.sum(valid), num_ignored
 
 
@@ -433,7 +483,7 @@ def _compacted_result(key, robot, rows, config, params, control, det, tag_model,
     update (a custom JVP: reverse mode cannot go through a loop whose trip count depends on data).
     """
     num_slots = det.ids.shape[0]
-    order, small, num_valid, num_ignored = _compact(det, config.max_tags, lanes)
+    order, small, num_valid, num_ignored = _compact(det, config.max_tags, lanes, config.sensor)
     small_rows = jax.tree_util.tree_map(lambda a: a[order], rows)
     res = _slot_result(key, robot, small_rows, config, params, control, small, tag_model)
     res = _expand(res, order, num_slots, config.max_tags, num_ignored)
@@ -456,15 +506,13 @@ def _compacted_result_jvp(config, tag_model, lanes, primals, tangents):
     return jax.jvp(all_slots, primals, tangents)
 
 
-def _slot_result(
-    key, robot, rows, config, params, control, det: hf_rfid.TagDetections, tag_model: TagModel
-) -> StepResult:
+def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model: TagModel) -> StepResult:
     """The step on all ``K`` slots of ``det``, up to the table write (module docstring): ``robot`` is
     ``(poses, log_weights)``, ``rows`` the slots' rows of the tag table."""
     state_poses, state_log_weights = robot
     k_move, k_tags, k_recover, k_resample = jax.random.split(key, 4)
     model = get_motion_model(config.motion_model)
-    sensor = params.sensor
+    sensor, sensor_params = config.sensor, params.sensor
     max_tags, num_slots = config.max_tags, det.ids.shape[0]
 
     # Materialise the moved particles: otherwise XLA:CPU fuses the motion draw (erf⁻¹, logs) into
@@ -472,19 +520,10 @@ def _slot_result(
     poses = jax.lax.optimization_barrier(model.sample(k_move, state_poses, control, params.motion))
     pose_est = weights.mean_from_probabilities(poses, jnp.exp(state_log_weights), _POSE_ANGLE_DIMS)
 
-    valid, ids, same, first, leader, num_ignored = _slots(det, max_tags)
-    offsets = sensor.offsets[jnp.clip(det.readers, 0, sensor.offsets.shape[0] - 1)]
+    valid, ids, same, first, leader, num_ignored = _slots(det, max_tags, sensor)
+    z = sensor.measurements(det, sensor_params)  # every leaf [K, ...]
     known = valid & (rows.counts > 0)
     is_new = valid & ~known
-
-    # Kidnapping check against the previous estimates of the re-detected tags.
-    num_known = jnp.sum(known)
-    ll_prev = _robot_log_likelihood(poses, rows.estimates, offsets, known, sensor)
-    lost = (
-        jnp.asarray(config.recovery)
-        & (num_known > 0)
-        & (jnp.max(ll_prev) < config.recovery_log_likelihood * num_known.astype(poses.dtype))
-    )
 
     slots = jnp.arange(num_slots)
 
@@ -493,13 +532,34 @@ def _slot_result(
     # [K, K] matrix sums the scores of the group (a new tag's first reader, which placed the
     # particles, is left out). This is the group's joint likelihood without a K·K·J evaluation.
     tag_keys = jax.vmap(lambda i: jax.random.fold_in(k_tags, i))(ids)
-    particles, log_w = jax.vmap(lambda k, row, new, off: tag_model.propose(k, row, new, pose_est, off, config, params))(
-        tag_keys, rows, is_new, offsets[first]
+    first_z = jax.tree_util.tree_map(lambda a: a[first], z)
+    particles, log_w = jax.vmap(lambda k, row, new, zk: tag_model.propose(k, row, new, pose_est, zk, config, params))(
+        tag_keys, rows, is_new, first_z
     )
     # Materialised for the same reason as the poses: otherwise PS-SLAM's ring mean fuses the jitter
     # draw and recomputes it for every ring entry, which would dominate the step.
     particles = jax.lax.optimization_barrier(particles)
-    own = jax.vmap(lambda p, off: hf_rfid.tag_log_likelihood(p, pose_est, off, sensor))(particles, offsets)
+
+    # Kidnapping check against the previous estimates of the re-detected tags (their particle sets
+    # before this step's update with robot_likelihood="mixture").
+    num_known = jnp.sum(known)
+    if config.robot_likelihood == "mixture":
+
+        def mixture_log_likelihood(p: jax.Array) -> jax.Array:
+            group_known, leader_known = same & known[:, None], leader & known
+            return _robot_mixture_log_likelihood(
+                p, particles, log_w, z, group_known, leader_known, sensor, sensor_params
+            )
+
+        ll_prev = mixture_log_likelihood(poses)
+    else:
+        ll_prev = _robot_log_likelihood(poses, rows.estimates, z, known, sensor, sensor_params)
+    lost = (
+        jnp.asarray(config.recovery)
+        & (num_known > 0)
+        & (jnp.max(ll_prev) < config.recovery_log_likelihood * num_known.astype(poses.dtype))
+    )
+    own = jax.vmap(lambda p, zk: sensor.landmark_log_likelihood(p, pose_est, zk, sensor_params))(particles, z)
     group = same & jnp.where(is_new[:, None], slots[None, :] != first[:, None], True)
     loglik = jnp.matmul(group.astype(own.dtype), own, precision=jax.lax.Precision.HIGHEST)
     new_rows = jax.vmap(lambda k, row, p, lw, ll, new: tag_model.finish(k, row, p, lw, ll, new, config, params))(
@@ -513,11 +573,17 @@ def _slot_result(
     estimates = jnp.where(lost | ~row_ok[:, None], rows.estimates, new_rows.estimates)
     if config.recovery:  # a cond: a step that is not lost draws nothing (under vmap both branches run)
         poses = jax.lax.cond(
-            lost, lambda p: _recover(k_recover, p, rows.estimates, offsets, known, config, sensor), lambda p: p, poses
+            lost, lambda p: _recover(k_recover, p, rows.estimates, z, known, config, sensor_params), lambda p: p, poses
         )
     uniform = jnp.full_like(state_log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
     prior_lw = jnp.where(lost, uniform, state_log_weights)
-    poses, loglik = keep_finite(state_poses, poses, _robot_log_likelihood(poses, estimates, offsets, known, sensor))
+    if config.robot_likelihood == "mixture":
+        # the tags' particle sets are not updated before this weighting: the check's likelihoods
+        # serve, unless the recovery redrew the particles
+        robot_ll = jax.lax.cond(lost, mixture_log_likelihood, lambda p: ll_prev, poses) if config.recovery else ll_prev
+    else:
+        robot_ll = _robot_log_likelihood(poses, estimates, z, known, sensor, sensor_params)
+    poses, loglik = keep_finite(state_poses, poses, robot_ll)
     norm = weights.normalize(prior_lw + loglik)
     res, base = finish_step(
         k_resample, poses, norm, threshold=config.ess_threshold, scheme=config.resampling, angle_dims=_POSE_ANGLE_DIMS

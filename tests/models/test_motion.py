@@ -212,3 +212,33 @@ def test_velocity_sample_with_zero_alphas_is_the_exact_arc_plus_pose_noise():
         return jnp.sum(moved[:, 0])
 
     assert np.all(np.isfinite(jax.grad(spread)(jnp.zeros(6))))
+
+
+def test_differential_drive_moves_along_the_arc_of_its_wheel_speeds(getkey):
+    """``v = (v_r + v_l)/2``, ``ω = (v_r − v_l)/b`` on the velocity model's arc; ``sample`` is centred on
+    it and its covariance is ``process_cov`` (200k draws, as the built-in models); one wheel base
+    gives one cached model; a bad wheel base or noise is refused by name."""
+    model = motion.differential_drive(0.157)
+    assert motion.differential_drive(0.157) is model and model.control_dim == 3 and model.dt_index == 2
+    pose = jnp.asarray([1.0, -2.0, 0.7])
+    u = jnp.asarray([0.30, 0.20, 0.5])
+    expected = motion.velocity_mean(pose, jnp.asarray([0.25, 0.10 / 0.157, 0.5]))
+    np.testing.assert_allclose(model.mean(pose, u), expected, atol=1e-6)
+    noise = motion.WheelNoise(jnp.asarray([0.02, 0.03]), jnp.asarray([0.005, 0.005, 0.01]))
+    draws = model.sample(getkey(), jnp.broadcast_to(pose, (200_000, 3)), u, noise)
+    d = np.asarray(draws - expected, np.float64)
+    empirical = np.cov(d.T)
+    q = np.asarray(model.process_cov(pose, u, noise))
+    scale = np.sqrt(np.outer(np.diag(empirical), np.diag(empirical)))
+    np.testing.assert_array_less(np.abs(q - empirical) / scale, 0.05)
+    # centred to 1 mm: the heading noise (0.11 rad over the step) bends the mean chord by about 0.2 mm
+    np.testing.assert_array_less(np.abs(d.mean(axis=0)), 1e-3)
+    still = motion.WheelNoise(jnp.zeros(2), jnp.zeros(3))
+    np.testing.assert_allclose(model.sample(getkey(), pose[None], u, still)[0], expected, atol=1e-6)
+    for bad in (0.0, -1.0, float("nan"), "wide"):
+        with pytest.raises(ValueError, match="wheel_base"):
+            motion.differential_drive(bad)
+    with pytest.raises(ValueError, match="motion noise sd"):
+        motion.validate_noise(model, motion.WheelNoise(jnp.zeros(3), jnp.zeros(3)))
+    with pytest.raises(ValueError, match="must be a WheelNoise"):
+        motion.validate_noise(model, motion.OmniNoise(jnp.zeros(3)))

@@ -27,7 +27,7 @@ from jaxnav._version import __version__
 
 # the help text lists these without importing the experiment; tests/test_cli.py checks they match
 MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2", "pf_slam", "ps_slam")
-UWB_ALGORITHMS = ("dead_reckoning", "mcl", "mcl_t", "pf_slam", "ps_slam")
+UWB_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "pf_slam", "ps_slam")
 HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 IR_LAYOUTS = ("proposed", "unique-11")
@@ -639,9 +639,10 @@ def _add_uwb_command(sub) -> None:
         "uwb",
         "range-only localization and SLAM on the real TU Chemnitz UWB ranges",
         f"""\
-Dead reckoning from the wheel speeds, MCL with the four surveyed anchors (Gaussian and Student-t
-ranges with a bias) and range-only PF-SLAM and PS-SLAM with the anchors unknown (a particle set per
-anchor, started on the ring of its first range), on the TU Chemnitz "Labyrinth" log: a
+Dead reckoning from the wheel speeds; EKF, UKF and MCL with the four surveyed anchors (ranges with a
+bias; MCL also with Student-t noise); and range-only FastSLAM 2.0, PF-SLAM and PS-SLAM with the
+anchors unknown (PF- and PS-SLAM: a particle set per anchor, started on the ring of its first range;
+FastSLAM: one Gaussian per anchor and particle), on the TU Chemnitz "Labyrinth" log: a
 differential-drive robot ranging one UWB anchor per step, with a ground-truth path. Prints, per
 algorithm, the mean position error and (SLAM) the anchors' mean error over --runs seeded runs,
 and draws a PNG (needs matplotlib).

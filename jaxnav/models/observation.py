@@ -10,6 +10,11 @@ EKF update. FastSLAM (:mod:`jaxnav.slam.fastslam`) takes one as
   (:mod:`jaxnav.models.landmarks`).
 * :data:`HF_FOOTPRINT` — an HF-RFID reader's detection of a tag, its footprint as a
   Gaussian ([W] §3.2; :mod:`jaxnav.models.hf_rfid`).
+* :data:`RANGE_ONLY` — a range to a beacon, with a bias (:mod:`jaxnav.models.range_only`); EKF
+  and UKF localization take it, FastSLAM too, though one Gaussian cannot hold the ring a first
+  range leaves (its initialisation is a guess, see the instance).
+
+EKF and UKF localization (``EKFConfig.observation_model``) and FastSLAM take any of them.
 
 On a known map the same models weigh robot poses: :func:`known_map_sensor` turns any of them into
 a :class:`~jaxnav.models.sensor.ParticleSensor` for MCL and its variants, and
@@ -28,17 +33,23 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_magnitude, check_shape
+from jaxnav.core.validation import check_choice, check_magnitude, check_shape
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
+from jaxnav.models import range_only as ro
 from jaxnav.models.sensor import ParticleSensor
 
 __all__ = [
     "ObservationModel",
     "RANGE_BEARING",
     "HF_FOOTPRINT",
+    "RANGE_ONLY",
     "OBSERVATION_MODELS",
+    "get_observation_model",
+    "check_observation_model",
+    "unbiased_measurements",
+    "noise_in_domain",
     "known_map_sensor",
     "HF_FOOTPRINT_MAP_SENSOR",
 ]
@@ -65,6 +76,12 @@ class ObservationModel(NamedTuple):
             does not depend on the pose (``H_m`` constant and the noise, seen in the landmark's
             frame, pose-free). Every particle then holds the same covariance of a landmark, and
             FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``).
+        bias: optional ``sensor_params -> b [dz]``, an additive offset of the measurement,
+            ``z = h(x, m) + b + noise``, differentiable in the parameters: the filters subtract it
+            from ``z`` (:func:`unbiased_measurements`) before anything else.
+        params_in_domain: optional ``sensor_params -> bool[]``, the value checks of ``validate``
+            as a traceable expression (steps inside a caller's ``jit``); default: every noise
+            variance positive (:func:`noise_in_domain`).
     """
 
     name: str
@@ -78,6 +95,8 @@ class ObservationModel(NamedTuple):
     update: Callable[..., kalman.UpdateResult] | None = None
     initialise: Callable[..., tuple[jax.Array, jax.Array]] | None = None
     pose_free_covariance: bool = False
+    bias: Callable[[Any], jax.Array] | None = None
+    params_in_domain: Callable[[Any], jax.Array] | None = None
 
 
 def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
@@ -85,7 +104,15 @@ def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
 
 
 RANGE_BEARING = ObservationModel(
-    "range_bearing", 2, 2, lm.predict, lm.inverse, _range_bearing_cov, (1,), lm.validate_noise
+    "range_bearing",
+    2,
+    2,
+    lm.predict,
+    lm.inverse,
+    _range_bearing_cov,
+    (1,),
+    lm.validate_noise,
+    params_in_domain=lm.noise_in_domain,
 )
 """Point landmarks seen by range and bearing (:mod:`jaxnav.models.landmarks`), ``z = (r, φ)`` with the
 bearing circular; sensor params :class:`jaxnav.models.landmarks.RangeBearingNoise`."""
@@ -103,6 +130,7 @@ HF_FOOTPRINT = ObservationModel(
     hf_rfid.footprint_landmark_update,
     hf_rfid.footprint_landmark_initialise,
     pose_free_covariance=True,
+    params_in_domain=hf_rfid.reader_params_in_domain,
 )
 """The HF-RFID detection as a Gaussian measurement ([W] §3.2), ``z`` = the detecting reader's
 position in the robot frame, ``h(x, m) = R(θ)ᵀ(m − p)``, ``R = diag(s²/12)`` for footprints of side ``s``.
@@ -111,8 +139,79 @@ Sensor params: :class:`jaxnav.models.hf_rfid.HFReaderParams`; observations:
 initialisation are in closed form (:func:`jaxnav.models.hf_rfid.footprint_landmark_update`); its landmark covariances do not depend on
 the pose, so FastSLAM keeps one per landmark (``FastSLAMConfig.covariance``)."""
 
-OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT}
-"""The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``)."""
+
+def _range(pose: jax.Array, beacon: jax.Array) -> jax.Array:
+    return ro.expected_range(pose[..., :2], beacon, 0.0)[..., None]
+
+
+def _ahead(pose: jax.Array, z: jax.Array) -> jax.Array:
+    """The point at range ``z`` straight ahead of the robot: a range alone does not say where."""
+    s, c = jnp.sin(pose[..., 2]), jnp.cos(pose[..., 2])
+    return pose[..., :2] + z[..., 0:1] * jnp.stack([c, s], axis=-1)
+
+
+def _ring_gaussian(pose: jax.Array, z: jax.Array, r: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The Gaussian of a beacon seen once by its range ``ρ``: on the ring, straight ahead of the robot,
+    with the ring's spread, ``cov = (ρ² / 2 + σ²) I`` (the second moment of a uniform ring about its
+    centre; a guess that the next ranges must correct)."""
+    var = 0.5 * z[0] * z[0] + r[0, 0]
+    return _ahead(pose, z), jnp.eye(2, dtype=var.dtype) * var
+
+
+def _range_cov(noise: ro.RangeNoise) -> jax.Array:
+    return jnp.reshape(noise.sd * noise.sd, (1, 1))
+
+
+RANGE_ONLY = ObservationModel(
+    "range_only",
+    1,
+    2,
+    _range,
+    _ahead,
+    _range_cov,
+    (),
+    ro.validate_noise,
+    initialise=_ring_gaussian,
+    bias=lambda noise: jnp.reshape(noise.bias, (1,)),
+    params_in_domain=ro.noise_in_domain,
+)
+"""A range to a beacon with Gaussian noise and a bias, ``z = ‖m − p‖ + b + σε`` ``[1]`` (m); sensor params
+:class:`jaxnav.models.range_only.RangeNoise` (its ``dof`` unused), observations
+:class:`jaxnav.models.range_only.RangeObs`. EKF and UKF localization with known beacons use it as it
+is. In FastSLAM a beacon seen for the first time becomes a Gaussian straight ahead of the robot at the
+measured range, with the ring's spread (``(ρ²/2 + σ²) I``): one Gaussian cannot hold the ring, which is
+why PF-SLAM and PS-SLAM's :data:`~jaxnav.models.range_only.RANGE_ONLY_LANDMARK_SENSOR` starts a particle
+set along it."""
+
+OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT, "range_only": RANGE_ONLY}
+"""The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``, ``"range_only"``)."""
+
+
+def get_observation_model(model: str | ObservationModel) -> ObservationModel:
+    """``model`` itself, or the built-in model of that name (:data:`OBSERVATION_MODELS`)."""
+    return model if isinstance(model, ObservationModel) else OBSERVATION_MODELS[model]
+
+
+def check_observation_model(name: str, model: object) -> None:
+    """Configuration check: a name in :data:`OBSERVATION_MODELS` or an :class:`ObservationModel`."""
+    if not isinstance(model, ObservationModel):
+        check_choice(name, model, OBSERVATION_MODELS)
+
+
+def unbiased_measurements(model: ObservationModel, z: jax.Array, sensor_params: Any) -> jax.Array:
+    """``z − b`` for a model with a ``bias`` (every leading axis of ``z [..., dz]``), else ``z`` itself."""
+    if model.bias is None:
+        return z
+    return z - model.bias(sensor_params).astype(z.dtype)
+
+
+def noise_in_domain(model: ObservationModel, sensor_params: Any) -> jax.Array:
+    """``bool[]``, traceable: the model's own ``params_in_domain``, else every variance of its noise
+    covariance positive and finite."""
+    if model.params_in_domain is not None:
+        return jnp.asarray(model.params_in_domain(sensor_params))
+    diag = jnp.diag(model.noise_cov(sensor_params))
+    return jnp.all((diag > 0) & jnp.isfinite(diag))
 
 
 # --------------------------------------------------------------------------- a known map: pose sensors

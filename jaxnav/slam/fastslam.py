@@ -94,7 +94,13 @@ from jaxnav.models.motion import (
     validate_controls,
 )
 from jaxnav.models.motion import validate_noise as validate_motion_noise
-from jaxnav.models.observation import HF_FOOTPRINT, OBSERVATION_MODELS, RANGE_BEARING, ObservationModel
+from jaxnav.models.observation import (
+    HF_FOOTPRINT,
+    OBSERVATION_MODELS,
+    RANGE_BEARING,
+    ObservationModel,
+    unbiased_measurements,
+)
 
 __all__ = [
     "ObservationModel",
@@ -718,6 +724,8 @@ def kernel(
     k_move, k_resample = jax.random.split(key)
     r = om.noise_cov(params.sensor)
     obs = at_least_one_slot(obs)
+    if om.bias is not None:  # a biased model (a UWB range): z − b, then as any other
+        obs = obs._replace(z=unbiased_measurements(om, obs.z, params.sensor))
     valid, ids, num_ignored = slot_valid(obs, config.num_landmarks)
     valid = valid & inputs_ok
 

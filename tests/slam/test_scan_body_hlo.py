@@ -472,3 +472,38 @@ def test_donated_step_writes_the_table_in_place(method, recovery):
     assert any(i.opcode in ("scatter", "dynamic-update-slice") and _any_table_sized(i.shapes, NUM_TAGS) for i in every)
     header = text.splitlines()[0]
     assert header.count("may-alias") + header.count("must-alias") >= 2 + len(state.tags)
+
+
+def _range_only_analysis(method: str) -> tuple[Any, Analysis]:
+    """The analysis of ``run`` (state donated) with range-only beacons weighted as mixtures."""
+    from jaxnav.models import range_only as ro
+
+    noise = ro.range_noise(0.1, 0.1)
+    common = dict(
+        num_particles=64,
+        num_tag_particles=16,
+        max_tags=NUM_TAGS,
+        sensor=ro.RANGE_ONLY_LANDMARK_SENSOR,
+        robot_likelihood="mixture",
+    )
+    if method == "pf":
+        module, config, params = pf_slam, pf_slam.PFSLAMConfig(**common), pf_slam.PFSLAMParams(MOTION, noise)
+    else:
+        config = ps_slam.PSSLAMConfig(lag=5, **common)
+        module, params = ps_slam, ps_slam.PSSLAMParams(MOTION, noise, jnp.float32(0.01))
+    state = jax.eval_shape(lambda: module.init(jax.random.key(0), config, params, jnp.zeros(3)))
+    controls, det = _slam_inputs()
+    obs = ro.RangeObs(det.ids, jnp.full((STEPS, SLOTS, 1), 2.0), det.mask)
+    jitted = module.run.jitted_donated
+    return state, analyse(jitted, jax.random.key(1), state, config, params, controls, obs, rows=NUM_TAGS)
+
+
+@pytest.mark.parametrize("method", ["pf", "ps"])
+def test_any_landmark_sensor_keeps_the_step_to_the_detected_rows(method):
+    """The table properties do not depend on the sensor: with range-only beacons, the robot weighted
+    against each beacon's particle set (``robot_likelihood="mixture"``) and the recovery on, the scan
+    body gathers and scatters the detected rows only and the donated table is not copied."""
+    state, found = _range_only_analysis(method)
+    assert len(found.loops) == 1
+    assert found.work == [], "whole-table work in the scan body:\n" + describe(found.work)
+    assert found.copies == [], "table copies outside or inside the scan:\n" + describe(found.copies)

@@ -4,13 +4,18 @@
 233 steps it ranges one anchor. Algorithms (:data:`ALGORITHMS`):
 
 * ``dead_reckoning``: the wheel speeds alone (:func:`jaxnav.io.uwb.dead_reckoning`);
+* ``ekf``, ``ukf``: EKF and UKF localization with the surveyed anchors and the biased range model
+  (:data:`~jaxnav.models.observation.RANGE_ONLY`; deterministic, one run);
 * ``mcl``, ``mcl_t``: MCL with the surveyed anchors and the range-only pose sensor, Gaussian
   (:data:`~jaxnav.models.range_only.RANGE_ONLY_SENSOR`) or Student-t
   (:data:`~jaxnav.models.range_only.RANGE_ONLY_T_SENSOR`) noise;
 * ``pf_slam``, ``ps_slam``: range-only SLAM, the anchors unknown
   (:data:`~jaxnav.models.range_only.RANGE_ONLY_LANDMARK_SENSOR`): a particle set per anchor that
   starts on the ring of its first range, the robot weighted against the sets
-  (``robot_likelihood="mixture"``).
+  (``robot_likelihood="mixture"``);
+* ``fastslam``: FastSLAM 2.0 with the same range model and the anchors unknown, each anchor one
+  Gaussian per particle, started straight ahead of the robot at its first range with the ring's spread
+  (:data:`~jaxnav.models.observation.RANGE_ONLY`): the comparator without a particle set per anchor.
 
 Every filter starts from the known initial pose (ground truth, heading from the first 0.1 m of path).
 Each particle filter runs ``runs`` times with different keys (one compiled program); the table gives
@@ -39,18 +44,20 @@ import numpy as np
 
 from jaxnav.experiments import report
 from jaxnav.io import uwb as data
-from jaxnav.localization import mcl
+from jaxnav.localization import ekf, mcl, ukf
 from jaxnav.models import landmarks as lm
 from jaxnav.models import motion
 from jaxnav.models import range_only as ro
-from jaxnav.slam import pf_slam, ps_slam
+from jaxnav.slam import fastslam, pf_slam, ps_slam
 
 __all__ = ["ALGORITHMS", "SLAM", "UWBSettings", "UWBResult", "run_algorithm", "run_study", "format_table", "plot_study"]
 
-ALGORITHMS = ("dead_reckoning", "mcl", "mcl_t", "pf_slam", "ps_slam")
+ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "pf_slam", "ps_slam")
 """The algorithms :func:`run_algorithm` runs, in the order of the table."""
-SLAM = ("pf_slam", "ps_slam")
+SLAM = ("fastslam", "pf_slam", "ps_slam")
 """The algorithms that map the anchors."""
+DETERMINISTIC = ("dead_reckoning", "ekf", "ukf")
+"""The algorithms that use no key (run once)."""
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,36 @@ def _dead_reckoning(key, seq, s):
     return data.dead_reckoning(seq), None
 
 
+def _kalman(module, config_type):
+    def run(key, seq, s):
+        controls, obs, start = _inputs(seq)
+        params = ekf.KalmanParams(s.motion_noise(), s.range_noise(), jnp.asarray(seq.anchors, start.dtype))
+        config = config_type(motion_model=seq.motion_model, observation_model="range_only")
+        cov = jnp.diag(jnp.asarray(s.initial_sd, start.dtype) ** 2)
+        state = module.init(None, config, params, start, cov)
+        _, trace = module.run(None, state, config, params, controls, obs)
+        return trace.estimate, None
+
+    return run
+
+
+def _fastslam(key, seq, s):
+    controls, obs, start = _inputs(seq)
+    config = fastslam.FastSLAMConfig(
+        num_particles=s.slam_particles,
+        num_landmarks=seq.anchors.shape[0],
+        version=2,
+        motion_model=seq.motion_model,
+        observation_model="range_only",
+        ess_threshold=0.5,
+    )
+    params = fastslam.FastSLAMParams(s.motion_noise(), s.range_noise())
+    k_init, k_run = jax.random.split(key)
+    state = fastslam.init(k_init, config, params, start)
+    final, trace = fastslam.run(k_run, state, config, params, controls, obs)
+    return trace.estimate, fastslam.map_estimate(final)[0]
+
+
 def _mcl(sensor):
     def run(key, seq, s):
         controls, obs, start = _inputs(seq)
@@ -161,8 +198,11 @@ def _slam(module):
 
 _RUNNERS: dict[str, Callable] = {
     "dead_reckoning": _dead_reckoning,
+    "ekf": _kalman(ekf, ekf.EKFConfig),
+    "ukf": _kalman(ukf, ukf.UKFConfig),
     "mcl": _mcl(ro.RANGE_ONLY_SENSOR),
     "mcl_t": _mcl(ro.RANGE_ONLY_T_SENSOR),
+    "fastslam": _fastslam,
     "pf_slam": _slam(pf_slam),
     "ps_slam": _slam(ps_slam),
 }
@@ -177,12 +217,13 @@ def _check_names(algorithms: Sequence[str]) -> None:
 def run_algorithm(
     name: str, seq: data.UWBSequence, key: jax.Array, runs: int = 10, settings: UWBSettings = UWBSettings()
 ) -> UWBResult:
-    """Run one algorithm ``runs`` times (keys ``fold_in(key, r)``; dead reckoning once) and score it."""
+    """Run one algorithm ``runs`` times (keys ``fold_in(key, r)``; the deterministic ones, dead
+    reckoning, EKF and UKF, once) and score it."""
     _check_names([name])
     if not isinstance(runs, int) or isinstance(runs, bool) or runs < 1:
         raise ValueError(f"runs must be a positive int, got {runs!r}")
     start = time.perf_counter()
-    repeats = 1 if name == "dead_reckoning" else runs
+    repeats = 1 if name in DETERMINISTIC else runs
     outputs = [jax.block_until_ready(_RUNNERS[name](jax.random.fold_in(key, r), seq, settings)) for r in range(repeats)]
     seconds = time.perf_counter() - start
     estimates = np.stack([np.asarray(est) for est, _ in outputs])
@@ -238,11 +279,15 @@ def format_table(results: Sequence[UWBResult]) -> str:
 
 _COLORS = {
     "dead_reckoning": "tab:gray",
+    "ekf": "tab:green",
+    "ukf": "tab:purple",
     "mcl": "tab:red",
     "mcl_t": "tab:orange",
+    "fastslam": "tab:blue",
     "pf_slam": "tab:olive",
     "ps_slam": "tab:cyan",
 }
+_MARKERS = {"fastslam": "s", "pf_slam": "D", "ps_slam": "v"}
 
 
 def _draw(seq: data.UWBSequence, results: Sequence[UWBResult]):
@@ -256,13 +301,20 @@ def _draw(seq: data.UWBSequence, results: Sequence[UWBResult]):
     for r in results:
         color = _COLORS.get(r.name, None)
         style = "--" if r.name == "dead_reckoning" else "-"
-        ax_path.plot(r.estimates[0, :, 0], r.estimates[0, :, 1], style, color=color, lw=1, label=f"{r.name} (run 1)")
+        ax_path.plot(
+            r.estimates[0, :, 0],
+            r.estimates[0, :, 1],
+            style,
+            color=color,
+            lw=1,
+            label=r.name if r.name in DETERMINISTIC else f"{r.name} (run 1)",
+        )
         if r.anchors is not None:
             a = r.anchors.reshape(-1, 2)
             ax_path.plot(
                 a[:, 0],
                 a[:, 1],
-                "D" if r.name == "pf_slam" else "v",
+                _MARKERS.get(r.name, "x"),
                 color=color,
                 mfc="none",
                 ms=6,

@@ -339,7 +339,7 @@ def test_batched_inverse_cdf_is_the_unbatched_one(n):
     one = jax.jit(R.inverse_cdf)
     expected = np.stack([np.asarray(one(points[b], jnp.asarray(w[b]))) for b in range(6)])
     np.testing.assert_array_equal(jax.jit(jax.vmap(R.inverse_cdf))(points, jnp.asarray(w)), expected)
-    shared = jax.vmap(R.inverse_cdf, (0, None))(points, jnp.asarray(w[3]))
+    shared = jax.jit(jax.vmap(R.inverse_cdf, (0, None)))(points, jnp.asarray(w[3]))
     np.testing.assert_array_equal(shared[3], expected[3])
 
 
@@ -357,7 +357,8 @@ def test_vmapped_schemes_equal_the_unbatched_ones(name):
 
 
 def test_gradients_flow_through_a_resampling_step(getkey):
-    """Indices carry no gradient; the particles' values do."""
+    """Indices carry no gradient; the particles' values do. (Jitted: run op by op, the gradient and
+    its vmap compile every primitive on its own, 12.5 s with XLA's defaults against 2.4 s.)"""
 
     def loss(shift, key):
         lw = -0.5 * (jnp.linspace(-2.0, 2.0, 50) - shift) ** 2
@@ -365,10 +366,12 @@ def test_gradients_flow_through_a_resampling_step(getkey):
         return jnp.sum(res.particles)
 
     key = getkey()
-    g = jax.grad(loss)(0.5, key)
-    idx = R.systematic(jax.random.split(key)[0], -0.5 * (jnp.linspace(-2.0, 2.0, 50) - 0.5) ** 2, 50)
+    g = jax.jit(jax.grad(loss))(0.5, key)
+    idx = jax.jit(R.systematic, static_argnums=2)(
+        jax.random.split(key)[0], -0.5 * (jnp.linspace(-2.0, 2.0, 50) - 0.5) ** 2, 50
+    )
     assert float(g) == pytest.approx(float(jnp.sum(jnp.linspace(-2.0, 2.0, 50)[idx])), rel=1e-5)
-    gs = jax.vmap(jax.grad(loss), (None, 0))(0.5, jax.random.split(key, 3))
+    gs = jax.jit(jax.vmap(jax.grad(loss), (None, 0)))(0.5, jax.random.split(key, 3))
     assert np.all(np.isfinite(np.asarray(gs)))
 
 

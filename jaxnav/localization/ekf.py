@@ -156,16 +156,9 @@ def validate_params(config: Any, params: KalmanParams) -> None:
     """Host-side checks of :class:`KalmanParams` against ``config.motion_model`` and ``config.obs_model``."""
     if not isinstance(params, KalmanParams):
         raise ValueError(f"params must be a KalmanParams, got {type(params).__name__}")
-    model = config.obs_model
-    if model is om.RANGE_BEARING:
-        lm.validate_map_params(config.motion_model, params)
-        return
     motion.validate_noise(config.motion_model, params.motion)
-    model.validate(params.sensor)
-    check_shape("params.landmarks", params.landmarks, (None, model.landmark_dim))
-    if np.shape(params.landmarks)[0] < 1:
-        raise ValueError("params.landmarks must hold at least one landmark")
-    check_magnitude("params.landmarks", params.landmarks)
+    config.obs_model.validate(params.sensor)
+    lm.check_landmark_map(params.landmarks, config.obs_model.landmark_dim)
 
 
 def check_inputs(config: Any, params: KalmanParams, controls: Any, obs: Any, time_axis: bool) -> None:

@@ -369,8 +369,7 @@ def landmark_observations(detections: TagDetections, params: HFReaderParams) -> 
                 f"{num_readers - 1}) where a detection is set, got {int(r[where])} at index {where} "
                 f"({int(bad.sum())} such slot(s))"
             )
-    readers = jnp.clip(detections.readers, 0, num_readers - 1)
-    return ReaderObservations(detections.ids, params.offsets[readers], detections.mask)
+    return ReaderObservations(detections.ids, slot_offsets(detections, params), detections.mask)
 
 
 def footprint_landmark_update(

@@ -53,6 +53,7 @@ __all__ = [
     "validate_observations",
     "LandmarkMapParams",
     "validate_map_params",
+    "check_landmark_map",
     "validate_steps",
     "usable_measurements",
     "noise_in_domain",
@@ -241,13 +242,19 @@ def validate_map_params(motion_model: str | motion.MotionModel, params: Any) -> 
     _check_sensor_params(params)
 
 
+def check_landmark_map(landmarks: Any, landmark_dim: int = 2) -> None:
+    """Host-side check of a known map ``params.landmarks``: ``[M, landmark_dim]`` with ``M ≥ 1``, finite
+    and at most :data:`~jaxnav.core.validation.MAX_MAGNITUDE` (m); raises ``ValueError`` naming it."""
+    check_shape("params.landmarks", landmarks, (None, landmark_dim))
+    if np.shape(landmarks)[0] < 1:
+        raise ValueError("params.landmarks must hold at least one landmark")
+    check_magnitude("params.landmarks", landmarks)
+
+
 def _check_sensor_params(params: Any) -> None:
     """The fields ``sensor`` (a range-bearing noise) and ``landmarks`` (at least one finite ``[M, 2]``, m)."""
     validate_noise(params.sensor)
-    check_shape("params.landmarks", params.landmarks, (None, 2))
-    if np.shape(params.landmarks)[0] < 1:
-        raise ValueError("params.landmarks must hold at least one landmark")
-    check_magnitude("params.landmarks", params.landmarks)
+    check_landmark_map(params.landmarks)
 
 
 def noise_in_domain(params: RangeBearingNoise) -> jax.Array:

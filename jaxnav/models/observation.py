@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import kalman
-from jaxnav.core.validation import check_choice, check_magnitude, check_shape
+from jaxnav.core.validation import check_choice
 from jaxnav.core.weights import wrap_angle
 from jaxnav.models import hf_rfid
 from jaxnav.models import landmarks as lm
@@ -255,10 +255,7 @@ def known_map_sensor(model: ObservationModel) -> ParticleSensor:
 
     def check_params(params: Any) -> None:
         model.validate(params.sensor)
-        check_shape("params.landmarks", params.landmarks, (None, model.landmark_dim))
-        if np.shape(params.landmarks)[0] < 1:
-            raise ValueError("params.landmarks must hold at least one landmark")
-        check_magnitude("params.landmarks", params.landmarks)
+        lm.check_landmark_map(params.landmarks, model.landmark_dim)
 
     def check_observations(obs: Any, time_axis: bool, params: Any) -> None:
         if not all(hasattr(obs, field) for field in ("ids", "z", "mask")):

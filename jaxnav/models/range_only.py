@@ -160,10 +160,7 @@ def _map_sensor(heavy_tailed: bool) -> ParticleSensor:
 
     def check_params(params: Any) -> None:
         validate_noise(params.sensor)
-        check_shape("params.landmarks", params.landmarks, (None, 2))
-        if np.shape(params.landmarks)[0] < 1:
-            raise ValueError("params.landmarks must hold at least one beacon")
-        check_finite("params.landmarks", params.landmarks)
+        lm.check_landmark_map(params.landmarks)
 
     return ParticleSensor(
         "range_only_t" if heavy_tailed else "range_only",

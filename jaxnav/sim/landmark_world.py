@@ -27,7 +27,7 @@ from jaxnav.core.weights import wrap_angle
 from jaxnav.models import landmarks as lm
 from jaxnav.models.motion import get_motion_model, validate_controls, validate_noise
 
-__all__ = ["SimulatedRun", "square_room_landmarks", "simulate"]
+__all__ = ["SimulatedRun", "square_room_landmarks", "simulate", "check_drive", "in_one_dtype"]
 
 
 class SimulatedRun(NamedTuple):
@@ -96,25 +96,50 @@ def simulate(
     ``jax_enable_x64`` simulate in float64, and the run's arrays come out in it.
     """
     check_key(key)
-    landmarks = float_array("landmarks", landmarks)
-    check_shape("landmarks", landmarks, (None, 2))
-    check_magnitude("landmarks", landmarks)
+    landmarks, initial_pose, controls = check_drive(
+        "landmarks", landmarks, initial_pose, controls, motion_model, motion_noise, max_range
+    )
+    lm.validate_noise(sensor_noise, "sensor_noise")
+    check_positive("fov", fov)
+    if is_concrete(fov) and np.any(np.asarray(fov) > 2.0 * math.pi + 1e-6):
+        raise ValueError(f"fov must be in (0, 2π] rad, got {np.asarray(fov)}")
+    landmarks, initial_pose, controls, motion_noise, sensor_noise = in_one_dtype(
+        landmarks, initial_pose, controls, motion_noise, sensor_noise
+    )
+    return _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise, motion_model, max_range, fov)
+
+
+def check_drive(
+    points_name: str,
+    points: Any,
+    initial_pose: Any,
+    controls: Any,
+    motion_model: Any,
+    motion_noise: Any,
+    max_range: Any,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Host-side checks shared by the simulators of a robot among points (``ValueError`` naming the
+    argument): the points ``[M, 2]`` and the start ``[3]`` finite and at most
+    :data:`~jaxnav.core.validation.MAX_MAGNITUDE`, controls of the motion model, its noise, and
+    ``max_range > 0`` (``inf``: no limit). Returns ``(points, initial_pose, controls)`` as float arrays."""
+    points = float_array(points_name, points)
+    check_shape(points_name, points, (None, 2))
+    check_magnitude(points_name, points)
     initial_pose = float_array("initial_pose", initial_pose)
     check_shape("initial_pose", initial_pose, (3,))
     check_magnitude("initial_pose", initial_pose)
     controls = float_array("controls", validate_controls("controls", controls, motion_model, time_axis=True))
     validate_noise(motion_model, motion_noise, "motion_noise")
-    lm.validate_noise(sensor_noise, "sensor_noise")
     if is_concrete(max_range) and not np.all(np.asarray(max_range, float) > 0):  # inf: no limit
         raise ValueError(f"max_range must be > 0 m (inf for no limit), got {max_range!r}")
-    check_positive("fov", fov)
-    if is_concrete(fov) and np.any(np.asarray(fov) > 2.0 * math.pi + 1e-6):
-        raise ValueError(f"fov must be in (0, 2π] rad, got {np.asarray(fov)}")
-    dtype = jnp.result_type(landmarks, initial_pose, controls, *jax.tree_util.tree_leaves((motion_noise, sensor_noise)))
-    landmarks, initial_pose, controls, motion_noise, sensor_noise = jax.tree_util.tree_map(
-        lambda x: jnp.asarray(x, dtype), (landmarks, initial_pose, controls, motion_noise, sensor_noise)
-    )
-    return _simulate(key, landmarks, initial_pose, controls, motion_noise, sensor_noise, motion_model, max_range, fov)
+    return points, initial_pose, controls
+
+
+def in_one_dtype(*trees: Any) -> tuple[Any, ...]:
+    """``trees`` with every leaf converted to ``jnp.result_type`` of them all (float32 controls with
+    float64 points under ``jax_enable_x64`` give float64 throughout)."""
+    dtype = jnp.result_type(*jax.tree_util.tree_leaves(trees))
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), trees)
 
 
 @partial(jax.jit, static_argnames=("motion_model",))

@@ -18,13 +18,12 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxnav.core import rng
 from jaxnav.core.filter import check_key
-from jaxnav.core.validation import check_magnitude, check_shape, float_array, is_concrete
 from jaxnav.models import range_only as ro
-from jaxnav.models.motion import get_motion_model, validate_controls, validate_noise
+from jaxnav.models.motion import get_motion_model
+from jaxnav.sim.landmark_world import check_drive, in_one_dtype
 
 __all__ = ["RangeRun", "simulate"]
 
@@ -72,22 +71,14 @@ def simulate(
     floating-point inputs are promoted to one dtype, which the run's arrays come out in.
     """
     check_key(key)
-    beacons = float_array("beacons", beacons)
-    check_shape("beacons", beacons, (None, 2))
-    check_magnitude("beacons", beacons)
-    initial_pose = float_array("initial_pose", initial_pose)
-    check_shape("initial_pose", initial_pose, (3,))
-    check_magnitude("initial_pose", initial_pose)
-    controls = float_array("controls", validate_controls("controls", controls, motion_model, time_axis=True))
-    validate_noise(motion_model, motion_noise, "motion_noise")
+    beacons, initial_pose, controls = check_drive(
+        "beacons", beacons, initial_pose, controls, motion_model, motion_noise, max_range
+    )
     ro.validate_noise(noise, "noise")
-    if is_concrete(max_range) and not np.all(np.asarray(max_range, float) > 0):
-        raise ValueError(f"max_range must be > 0 m (inf for no limit), got {max_range!r}")
     if not isinstance(heavy_tailed, bool):
         raise ValueError(f"heavy_tailed must be True or False, got {heavy_tailed!r}")
-    dtype = jnp.result_type(beacons, initial_pose, controls, *jax.tree_util.tree_leaves((motion_noise, noise)))
-    beacons, initial_pose, controls, motion_noise, noise = jax.tree_util.tree_map(
-        lambda x: jnp.asarray(x, dtype), (beacons, initial_pose, controls, motion_noise, noise)
+    beacons, initial_pose, controls, motion_noise, noise = in_one_dtype(
+        beacons, initial_pose, controls, motion_noise, noise
     )
     return _simulate(key, beacons, initial_pose, controls, motion_noise, noise, motion_model, max_range, heavy_tailed)
 

@@ -27,7 +27,7 @@ from jaxnav._version import __version__
 
 # the help text lists these without importing the experiment; tests/test_cli.py checks they match
 MRCLAM_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "ekf_slam", "fastslam1", "fastslam2", "pf_slam", "ps_slam")
-UWB_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "pf_slam", "ps_slam")
+UWB_ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "fastslam_ring", "pf_slam", "ps_slam")
 HF_METHODS = ("pf_slam", "ps_slam", "fastslam")
 HF_TRAJECTORIES = ("rectangle", "random", "kidnapping")
 IR_LAYOUTS = ("proposed", "unique-11")

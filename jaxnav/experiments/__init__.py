@@ -5,7 +5,9 @@ Studies:
 * :mod:`jaxnav.experiments.hf_slam`: [W] ch. 3–4, HF-RFID SLAM on simulated tag carpets.
 * :mod:`jaxnav.experiments.ir`: [W] ch. 5, IR emitter positioning.
 * :mod:`jaxnav.experiments.uhf`: [A], UHF-RFID tag localization (simulated and the AdaRF real reads).
-* :mod:`jaxnav.experiments.mrclam`: classical filters on the UTIAS MRCLAM real dataset.
+* :mod:`jaxnav.experiments.mrclam`: classical filters and PF/PS-SLAM on the UTIAS MRCLAM real dataset.
+* :mod:`jaxnav.experiments.uwb`: range-only localization and SLAM on the TU Chemnitz UWB log.
+* :mod:`jaxnav.experiments.range_slam`: range-only SLAM among unknown beacons, simulated.
 
 Shared, study-free layer:
 
@@ -17,6 +19,7 @@ Shared, study-free layer:
 * :mod:`~jaxnav.experiments.sweep`: chunked, resumable batch Monte Carlo over the cells.
 * :mod:`~jaxnav.experiments.stats`: means, 95 % intervals and runs with nothing to score.
 * :mod:`~jaxnav.experiments.report`: the result-table formatter (terminal text, Markdown).
+* :mod:`~jaxnav.experiments.curves`: results that are curves (summaries, tables, figures).
 
 Importing this package imports no study; import the subpackage you need.
 """

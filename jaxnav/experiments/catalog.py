@@ -10,6 +10,8 @@ study's ``EXPERIMENTS`` (or a new study module to :data:`STUDIES`).
   [W] ch. 3–4, HF-RFID SLAM (Tables 3.1, 3.2, 4.1, 4.2; Figs. 3.5, 3.7, 4.4, 3.12).
 * :mod:`jaxnav.experiments.ir.tables`: [W] ch. 5, IR emitter positioning (Tables 5.2, 5.3, §5.4).
 * :mod:`jaxnav.experiments.uhf.figures`: [A] §5.2, UHF-RFID tag localization (Figs. 5.3, 5.5, 5.6).
+* :mod:`jaxnav.experiments.range_slam.simulation`: range-only SLAM among unknown beacons (beyond the
+  theses: [W]'s future work on other sensors).
 """
 
 from __future__ import annotations
@@ -22,11 +24,12 @@ from jaxnav.experiments.experiment import Experiment
 from jaxnav.experiments.hf_slam import figures as hf_figures
 from jaxnav.experiments.hf_slam import tables as hf_tables
 from jaxnav.experiments.ir import tables as ir_tables
+from jaxnav.experiments.range_slam import simulation as range_slam
 from jaxnav.experiments.uhf import figures as uhf_figures
 
 __all__ = ["STUDIES", "experiments"]
 
-STUDIES = (hf_tables, hf_figures, ir_tables, uhf_figures)
+STUDIES = (hf_tables, hf_figures, ir_tables, uhf_figures, range_slam)
 """The modules whose ``EXPERIMENTS`` tuples make the catalog, in this order."""
 
 

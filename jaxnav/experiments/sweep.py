@@ -65,7 +65,9 @@ Parallelism: ``workers`` chunks run at once in threads (XLA releases the
 GIL; by default one per core on a CPU, up to 4: :func:`default_workers`), while the cells compile one after
 the other in another thread: a cell's chunks start as soon as it is
 compiled. Results are still saved in chunk order, so the numbers and the
-checkpoint do not depend on ``workers``.
+checkpoint do not depend on ``workers``. On a CPU, the chunks of a cell whose program calls
+LAPACK (FastSLAM 2.0's Cholesky factors, an EKF's solves) run one at a time
+(:func:`calls_lapack`: two at once can hang XLA:CPU); other cells' chunks run beside them.
 
 Summaries of the runs (means, intervals, runs left out and counted) are in
 :mod:`jaxnav.experiments.stats`.
@@ -77,6 +79,7 @@ import hashlib
 import json
 import os
 import sys
+import threading
 import time
 import warnings
 import zlib
@@ -96,6 +99,7 @@ __all__ = [
     "run_key",
     "sweep",
     "default_workers",
+    "calls_lapack",
     "Progress",
     "UnverifiedCheckpointWarning",
     "FAST_COMPILE",
@@ -495,10 +499,39 @@ def default_workers() -> int:
     return max(1, min(4, cores))
 
 
+_LAPACK_LOCK = threading.Lock()
+"""Held while a program that calls LAPACK runs on the CPU (:func:`_evaluate`)."""
+
+
+def calls_lapack(exe: Any) -> bool:
+    """Whether compiled ``exe`` calls LAPACK (a Cholesky, LU, QR, SVD or eigen-decomposition custom call).
+
+    XLA:CPU runs a LAPACK call on a batch of many small matrices as tasks on the thread pool that
+    also runs the programs, and waits for them: two such programs started at once from two threads
+    can each hold a pool thread while waiting for tasks queued behind the other, and never finish
+    (measured with jax 0.10.2 on 2 cores: a loop over the Cholesky factors of 25,000 3 × 3 matrices,
+    started twice at once, hangs; one at a time, or beside programs without LAPACK, it does not).
+    """
+    try:
+        return 'custom_call_target="lapack_' in exe.as_text()
+    except Exception:  # an executable without HLO text: assume it may
+        return True
+
+
+def _compile_cell(fn, keys, shared, mode, compiler_options):
+    """The cell's executable, and whether its chunks must run one at a time (:func:`calls_lapack` on a CPU)."""
+    exe = compiled_vmap(fn, keys, shared=shared, mode=mode, compiler_options=compiler_options)
+    return exe, jax.default_backend() == "cpu" and calls_lapack(exe)
+
+
 def _evaluate(compiled, keys, shared):
-    """One chunk in a worker thread: wait for the cell's executable, run it, bring the result to the host."""
-    exe = compiled.result()
-    return jax.device_get(exe(keys, *shared))
+    """One chunk in a worker thread: wait for the cell's executable, run it, bring the result to the host.
+    A program that calls LAPACK runs while no other such program does (:func:`calls_lapack`)."""
+    exe, exclusive = compiled.result()
+    if not exclusive:
+        return jax.device_get(exe(keys, *shared))
+    with _LAPACK_LOCK:
+        return jax.device_get(exe(keys, *shared))
 
 
 def sweep(
@@ -657,9 +690,7 @@ def sweep(
         for cell_id, _, _, keys, _ in work:
             if cell_id not in compiled:
                 fn, shared = shared_of[cell_id]
-                compiled[cell_id] = compiler.submit(
-                    compiled_vmap, fn, keys, shared=shared, mode=batching, compiler_options=compiler_options
-                )
+                compiled[cell_id] = compiler.submit(_compile_cell, fn, keys, shared, batching, compiler_options)
         pending = [pool.submit(_evaluate, compiled[c], keys, shared_of[c][1]) for c, _, _, keys, _ in work]
         for (cell_id, start, stop, _, skip), future in zip(work, pending):
             result = future.result()

@@ -13,6 +13,8 @@ EKF update. FastSLAM (:mod:`jaxnav.slam.fastslam`) takes one as
 * :data:`RANGE_ONLY` — a range to a beacon, with a bias (:mod:`jaxnav.models.range_only`); EKF
   and UKF localization take it, FastSLAM too, though one Gaussian cannot hold the ring a first
   range leaves (its initialisation is a guess, see the instance).
+* :data:`RANGE_ONLY_RING` — the same range, for FastSLAM: a new beacon is spread around its ring
+  over the particles, each particle holding one point of the ring.
 
 EKF and UKF localization (``EKFConfig.observation_model``) and FastSLAM take any of them.
 
@@ -45,7 +47,9 @@ __all__ = [
     "RANGE_BEARING",
     "HF_FOOTPRINT",
     "RANGE_ONLY",
+    "RANGE_ONLY_RING",
     "OBSERVATION_MODELS",
+    "spread_quantiles",
     "get_observation_model",
     "check_observation_model",
     "unbiased_measurements",
@@ -82,6 +86,11 @@ class ObservationModel(NamedTuple):
         params_in_domain: optional ``sensor_params -> bool[]``, the value checks of ``validate``
             as a traceable expression (steps inside a caller's ``jit``); default: every noise
             variance positive (:func:`noise_in_domain`).
+        initialise_spread: optional ``(pose, z, R, u, du) -> (mean, cov)``, used by FastSLAM instead
+            of ``initialise`` when one measurement leaves a landmark on a curve rather than near a
+            point: particle ``n`` gets its own point of the curve at quantile ``u ∈ (0, 1)``
+            (:func:`spread_quantiles`, one per stratum of width ``du = 1/N``), so that together the particles
+            hold the curve that no single Gaussian does.
     """
 
     name: str
@@ -97,6 +106,33 @@ class ObservationModel(NamedTuple):
     pose_free_covariance: bool = False
     bias: Callable[[Any], jax.Array] | None = None
     params_in_domain: Callable[[Any], jax.Array] | None = None
+    initialise_spread: Callable[..., tuple[jax.Array, jax.Array]] | None = None
+
+
+def _mix32(h: jax.Array) -> jax.Array:
+    """MurmurHash3's 32-bit finaliser: a bijection of ``uint32`` that scatters nearby inputs."""
+    h = h ^ (h >> 16)
+    h = h * jnp.uint32(0x85EBCA6B)
+    h = h ^ (h >> 13)
+    h = h * jnp.uint32(0xC2B2AE35)
+    return h ^ (h >> 16)
+
+
+def spread_quantiles(num_particles: int, landmark: jax.Array) -> jax.Array:
+    """``[num_particles]`` quantiles in ``(0, 1)`` at which FastSLAM's particles place a new landmark
+    (``ObservationModel.initialise_spread``): a Latin hypercube, ``u_n = (π_j(n) + ½) / N``.
+
+    ``π_j`` is a permutation of ``0 … N − 1`` that depends on the landmark ``j`` (the ranks of a hash
+    of ``(n, j)``), so each landmark's quantiles are exactly one per stratum ``[k/N, (k + 1)/N)`` — the
+    ring is covered evenly, with no gap a random draw would leave — while the pairing of two
+    landmarks' quantiles across the particles looks random: the ``N`` joint hypotheses of a particle
+    set spread over the combinations instead of repeating one. Deterministic (no key, the same for
+    every run) and exact in float32 and float64.
+    """
+    n = jnp.arange(num_particles, dtype=jnp.uint32)
+    salt = _mix32(jnp.asarray(landmark).astype(jnp.uint32) + jnp.uint32(0x9E3779B9))
+    rank = jnp.argsort(_mix32(n ^ salt))  # distinct hashes (a bijection of n): a permutation
+    return (rank.astype(jnp.float32) + 0.5) / num_particles
 
 
 def _range_bearing_cov(sensor: lm.RangeBearingNoise) -> jax.Array:
@@ -183,8 +219,36 @@ measured range, with the ring's spread (``(ρ²/2 + σ²) I``): one Gaussian can
 why PF-SLAM and PS-SLAM's :data:`~jaxnav.models.range_only.RANGE_ONLY_LANDMARK_SENSOR` starts a particle
 set along it."""
 
-OBSERVATION_MODELS = {"range_bearing": RANGE_BEARING, "hf_footprint": HF_FOOTPRINT, "range_only": RANGE_ONLY}
-"""The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``, ``"range_only"``)."""
+
+def _ring_point(pose: jax.Array, z: jax.Array, r: jax.Array, u: jax.Array, du: float) -> tuple[jax.Array, jax.Array]:
+    """A beacon seen once by its range ``ρ``, as one particle's hypothesis: the point of the ring at the
+    angle ``2πu`` (world frame), with the range's variance ``σ²`` across the ring and
+    ``σ² + (2πρ·du)²`` along it (the particles' points are ``2πρ·du`` apart on the ring)."""
+    angle = 2.0 * jnp.pi * u.astype(z.dtype)
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    mean = pose[:2] + z[0] * jnp.stack([c, s])
+    var_along = r[0, 0] + (2.0 * jnp.pi * z[0] * du) ** 2
+    radial = jnp.stack([c, s])
+    along = jnp.stack([-s, c])
+    cov = r[0, 0] * jnp.outer(radial, radial) + var_along * jnp.outer(along, along)
+    return mean, cov
+
+
+RANGE_ONLY_RING = RANGE_ONLY._replace(name="range_only_ring", initialise_spread=_ring_point)
+""":data:`RANGE_ONLY` with FastSLAM's new beacons spread around the ring of their first range: particle
+``n`` places the beacon at the angle ``2πu_n`` (:func:`spread_quantiles`) with the range's variance across
+the ring and its share of the ring along it, so the particle set together holds the ring and the ranges
+that follow select the particles whose guess was right. The measurement model, and EKF and UKF with
+known beacons, are :data:`RANGE_ONLY`'s."""
+
+OBSERVATION_MODELS = {
+    "range_bearing": RANGE_BEARING,
+    "hf_footprint": HF_FOOTPRINT,
+    "range_only": RANGE_ONLY,
+    "range_only_ring": RANGE_ONLY_RING,
+}
+"""The built-in observation models by name (``"range_bearing"``, ``"hf_footprint"``, ``"range_only"``,
+``"range_only_ring"``)."""
 
 
 def get_observation_model(model: str | ObservationModel) -> ObservationModel:

@@ -42,7 +42,7 @@ from jaxnav.core import rng
 from jaxnav.core.filter import check_key
 from jaxnav.core.validation import check_finite, check_nonnegative_int, check_positive_int, check_shape
 from jaxnav.core.weights import wrap_angle
-from jaxnav.models.motion import get_motion_model, omni_mean
+from jaxnav.models.motion import check_motion_model, get_motion_model, omni_mean
 
 __all__ = [
     "loop_controls",
@@ -229,10 +229,11 @@ def random_controls(
     return start_pose, controls
 
 
-def integrate_controls(start_pose: jax.Array, controls: jax.Array, motion_model: str = "omni") -> jax.Array:
-    """``[T, 3]`` poses after each control row, integrated with the noise-free model (``omni`` or ``omni_body``)."""
-    if motion_model not in ("omni", "omni_body"):
-        raise ValueError(f"motion_model must be 'omni' or 'omni_body', got {motion_model!r}")
+def integrate_controls(start_pose: jax.Array, controls: jax.Array, motion_model: Any = "omni") -> jax.Array:
+    """``[T, 3]`` poses after each control row, integrated with the noise-free model (a name in
+    :data:`jaxnav.models.motion.MODELS` or a motion model): dead reckoning, or the path a control
+    sequence drives exactly."""
+    check_motion_model("motion_model", motion_model)
     mean = get_motion_model(motion_model).mean
 
     def body(pose, u):

@@ -99,6 +99,7 @@ from jaxnav.models.observation import (
     OBSERVATION_MODELS,
     RANGE_BEARING,
     ObservationModel,
+    spread_quantiles,
     unbiased_measurements,
 )
 
@@ -461,8 +462,16 @@ def _particles_ekf(om: ObservationModel, r: jax.Array, poses, mu, cov, z) -> kal
     return ekf(poses, mu, cov)
 
 
-def _particles_init(om: ObservationModel, r: jax.Array, poses, z, shared: bool) -> tuple[jax.Array, jax.Array]:
-    """:func:`landmark_init` in every particle: ``(mean [N, D], cov [N, D, D] or, shared, [D, D])``."""
+def _particles_init(
+    om: ObservationModel, r: jax.Array, poses, z, shared: bool, landmark: jax.Array
+) -> tuple[jax.Array, jax.Array]:
+    """:func:`landmark_init` of landmark ``landmark`` in every particle: ``(mean [N, D], cov [N, D, D] or,
+    shared, [D, D])``; with ``om.initialise_spread``, particle ``n`` takes its own point of the landmark's
+    curve (:func:`jaxnav.models.observation.spread_quantiles`)."""
+    if om.initialise_spread is not None:
+        n = poses.shape[0]
+        u = spread_quantiles(n, landmark)
+        return jax.vmap(lambda p, q: om.initialise_spread(p, z, r, q, 1.0 / n))(poses, u)
     init = _shared_vmap(om, lambda p: landmark_init(om, r, p, z), in_axes=0, out_axes=(0, None if shared else 0))
     return init(poses)
 
@@ -505,7 +514,7 @@ def _apply_slot(om, r, poses, means, covs, seen, obs, ids, previous, k, carry):
         return u.mean, u.cov, u.log_likelihood
 
     def init():
-        mu, cov = _particles_init(om, r, poses, z, shared)
+        mu, cov = _particles_init(om, r, poses, z, shared, j)
         return mu, cov, jnp.zeros_like(loglik)
 
     # seen is shared by the particles, so one branch serves them all
@@ -602,7 +611,7 @@ def update_landmarks(
     else:
         cov0 = jnp.swapaxes(jnp.take(covs, lane_ids, axis=1, mode="clip"), 0, 1)  # [L, N, D, D]
     upd = jax.vmap(lambda zz, mu, c: _particles_ekf(om, r, poses, mu, c, zz))(z, mu0, cov0)
-    ini_mu, ini_cov = jax.vmap(lambda zz: _particles_init(om, r, poses, zz, shared))(z)
+    ini_mu, ini_cov = jax.vmap(lambda zz, j: _particles_init(om, r, poses, zz, shared, j))(z, lane_ids)
     lane_mu = jnp.where(lane_new[:, None, None], ini_mu, upd.mean)
     lane_cov = jnp.where(jnp.expand_dims(lane_new, tuple(range(1, ini_cov.ndim))), ini_cov, upd.cov)
     loglik = jnp.sum(jnp.where((lane_ok & ~lane_new)[:, None], upd.log_likelihood, 0.0), axis=0)

@@ -76,7 +76,7 @@ def test_every_study_uses_the_one_formatter():
     """The table renderers of the studies are built on this module (no study formats its own layout)."""
     import inspect
 
-    from jaxnav.experiments.hf_slam import figures as hf_figures
+    from jaxnav.experiments import curves
     from jaxnav.experiments.hf_slam import simulation as hf_simulation
     from jaxnav.experiments.hf_slam import tables as hf_tables
     from jaxnav.experiments.ir import positioning as ir_positioning
@@ -88,7 +88,7 @@ def test_every_study_uses_the_one_formatter():
     for fn in (
         hf_tables.render_table,
         hf_tables.markdown_table,
-        hf_figures.markdown_curves,
+        curves.markdown,
         hf_simulation.format_errors,
         ir_tables.render_table,
         ir_tables.markdown_table,

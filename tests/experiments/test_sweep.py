@@ -161,6 +161,38 @@ def test_threads_asking_for_one_executable_compile_it_once():
     assert len(traces) == 1 and all(e is exes[0] for e in exes)
 
 
+_LAPACK_SWEEP = """
+import jax, jax.numpy as jnp
+from jaxnav.experiments import sweep as sw
+
+def cholesky_loop(key):  # 12,500 Cholesky factors of 3 x 3 matrices per run, 300 times
+    y = jax.random.normal(key, (12_500, 3))
+    def body(c, _):
+        return c + jnp.linalg.cholesky(y[:, :, None] * y[:, None, :] + (3.0 + c) * jnp.eye(3)).sum() * 1e-9, None
+    return {"total": jax.lax.scan(body, 0.0, None, length=300)[0]}
+
+out = sw.sweep([("a", cholesky_loop), ("b", cholesky_loop)], 4, jax.random.PRNGKey(0), None, 2, False, workers=2)
+print("done", sorted(out))
+"""
+
+
+def test_programs_that_call_lapack_run_one_at_a_time_and_finish():
+    """Two chunks of a program that factorises 25,000 small matrices at a time, started together from two
+    worker threads, hang XLA:CPU (jax 0.10.2; :func:`jaxnav.experiments.sweep.calls_lapack`): the sweep runs
+    such chunks one at a time and finishes (in a child process, which a hang would not leave: the
+    test fails at its timeout instead). ``calls_lapack`` tells the programs apart."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [sys.executable, "-c", _LAPACK_SWEEP], capture_output=True, text=True, timeout=240, check=False
+    )
+    assert proc.returncode == 0 and "done ['a', 'b']" in proc.stdout, proc.stderr[-2000:]
+    x = jnp.ones((4, 3, 3)) + 3 * jnp.eye(3)
+    assert sw.calls_lapack(jax.jit(jnp.linalg.cholesky).lower(x).compile())
+    assert not sw.calls_lapack(jax.jit(jnp.sin).lower(x).compile())
+
+
 # ---------------------------------------------------------------------------
 # chunk widths: a run is bit for bit the same whenever its chunk has the same width
 

@@ -102,3 +102,54 @@ def test_fastslam_starts_a_beacon_ahead_at_its_range_with_the_rings_spread():
     covs = np.asarray(final.covs)[..., 3, :, :] if final.covs.ndim == 4 else np.asarray(final.covs)[3]
     np.testing.assert_allclose(covs.reshape(-1, 2, 2)[0], np.eye(2) * (0.5 * 2.0**2 + 0.01), rtol=1e-5)
     assert bool(np.asarray(final.seen)[..., 3].all()) and not bool(np.asarray(final.seen)[..., 0].any())
+
+
+def test_fastslam_ring_spreads_a_new_beacon_around_its_ring_one_point_per_particle():
+    """RANGE_ONLY_RING: particle ``n`` puts a new beacon on the ring of radius ``ρ = z − b`` at the angle
+    ``2πu_n``; the particles' angles cover the circle evenly (every eighth of it holds 50 of 400
+    particles, one either way for a point on a boundary), the covariance is ``σ²`` across the ring and ``σ² + (2πρ/N)²``
+    along it, and two beacons first seen together get unrelated angles (their pairs fill each of 16
+    cells of the torus, 25 ± 12 of 400)."""
+    n = 400
+    config = fastslam.FastSLAMConfig(
+        num_particles=n, num_landmarks=8, motion_model="velocity", observation_model="range_only_ring"
+    )
+    still = motion.VelocityNoise(jnp.zeros(6), jnp.zeros(3))
+    params = fastslam.FastSLAMParams(still, NOISE)
+    state = fastslam.init(jax.random.PRNGKey(0), config, params, START)
+    obs = ro.RangeObs(jnp.asarray([3, 5]), jnp.asarray([[2.3], [1.3]]), jnp.asarray([True, True]))
+    final, _ = fastslam.step(jax.random.PRNGKey(1), state, config, params, jnp.asarray([0.0, 0.0, 0.1]), obs)
+    offsets = np.asarray(final.means)[:, [3, 5]] - np.asarray(START)[:2]  # [N, 2 beacons, 2]
+    np.testing.assert_allclose(np.linalg.norm(offsets, axis=-1), np.tile([2.0, 1.0], (n, 1)), atol=1e-5)
+    angles = np.mod(np.arctan2(offsets[..., 1], offsets[..., 0]), 2 * np.pi)
+    for b in range(2):
+        counts = np.bincount((angles[:, b] / (np.pi / 4)).astype(int), minlength=8)
+        assert counts.min() >= 49 and counts.max() <= 51, counts
+    cells = np.bincount((angles[:, 0] / (np.pi / 2)).astype(int) * 4 + (angles[:, 1] / (np.pi / 2)).astype(int))
+    assert len(cells) == 16 and cells.min() >= 13 and cells.max() <= 37, cells
+    cov = np.asarray(final.covs)[0, 3]
+    radial = offsets[0, 0] / 2.0
+    along = np.array([-radial[1], radial[0]])
+    assert radial @ cov @ radial == pytest.approx(0.01, rel=1e-4)
+    assert along @ cov @ along == pytest.approx(0.01 + (2 * np.pi * 2.0 / n) ** 2, rel=1e-4)
+
+
+@pytest.mark.parametrize("num_particles", [1, 7, 1000, 100_000])
+def test_spread_quantiles_are_one_per_stratum_and_pair_landmarks_at_random(num_particles):
+    """A Latin hypercube: each landmark's quantiles are exactly ``(k + ½)/N``, k = 0 … N − 1, in an order
+    that differs between landmarks (for N ≥ 1000 two landmarks' orders agree at no more than a few
+    particles, as two random permutations would: 1 expected); the same inside ``jit``."""
+    from jaxnav.models.observation import spread_quantiles
+
+    expected = (np.arange(num_particles) + 0.5) / num_particles
+    orders = []
+    for j in (0, 1, 7, 999):
+        u = np.asarray(spread_quantiles(num_particles, jnp.asarray(j)))
+        np.testing.assert_allclose(np.sort(u), expected, rtol=1e-6)
+        orders.append(np.argsort(u))
+    if num_particles >= 1000:
+        for a in range(4):
+            for b in range(a):
+                assert np.sum(orders[a] == orders[b]) <= 8, (a, b)
+    inside = jax.jit(lambda j: spread_quantiles(num_particles, j))
+    np.testing.assert_array_equal(inside(jnp.asarray(7)), spread_quantiles(num_particles, jnp.asarray(7)))

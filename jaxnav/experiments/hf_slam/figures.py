@@ -27,7 +27,6 @@ the tests check:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any, NamedTuple
 
@@ -35,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.experiments import curves as curve_results
 from jaxnav.experiments import report, stats
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
@@ -62,24 +62,6 @@ READER_SIDES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
 """Reader footprint sides (m) of Fig. 4.4."""
 
 
-def _summaries(x: Sequence[float], per_run: Sequence[np.ndarray], diverged: Sequence[np.ndarray]) -> dict:
-    """``{"x", "mean", "ci95", "runs", "diverged_runs"}`` of one curve from per-point arrays of per-run values
-    (NaN = no value) and per-point masks of the runs that diverged (left out, counted), with
-    ``"unscored_runs"`` per point when a point has runs without a value."""
-    means, cis, unscored, runs, gone = [], [], [], [], []
-    for values, mask in zip(per_run, diverged, strict=True):
-        s = stats.summarize(values, diverged=mask)
-        means.append(s.mean)
-        cis.append([s.lo, s.hi])
-        unscored.append(s.unscored)
-        runs.append(s.runs)
-        gone.append(s.diverged)
-    out = {"x": list(map(float, x)), "mean": means, "ci95": cis, "runs": runs, "diverged_runs": gone}
-    if any(unscored):
-        out["unscored_runs"] = unscored
-    return out
-
-
 _NAN_TEXT = {
     "tag error dt (mm)": NOTHING_MAPPED,
     "tag error after the n-th detection (mm)": f"{report.NA} (no tag detected n times)",
@@ -87,112 +69,29 @@ _NAN_TEXT = {
 """How a curve point no run could score is written, per quantity (default :data:`jaxnav.experiments.report.NA`)."""
 
 
-def _points(c: dict) -> list[dict]:
-    """The curve's points as ``{"mean", "ci95"[, "unscored_runs"]}`` summaries (for :mod:`jaxnav.experiments.report`)."""
-    n = len(c["mean"])
-    unscored = c.get("unscored_runs", [0] * n)
-    gone, runs = c.get("diverged_runs", [0] * n), c.get("runs", [None] * n)
-    return [
-        {"mean": m, "ci95": ci, "unscored_runs": k, "diverged_runs": d, "runs": r}
-        for m, ci, k, d, r in zip(c["mean"], c["ci95"], unscored, gone, runs)
-    ]
-
-
-def _diverged_text(c: dict) -> str:
-    """``"2 of 8 runs diverged …"`` for a curve whose points all pool the same runs (the kidnapping's, fig-3.5's),
-    ``"diverged runs at some points …"`` otherwise; ``""`` when no run diverged."""
-    gone, runs = c.get("diverged_runs", []), c.get("runs", [])
-    if not any(gone):
-        return ""
-    if len(set(gone)) == 1 and len(set(runs)) == 1:
-        return f"{report.diverged_note(gone[0], runs[0])} (non-finite results): left out of every point"
-    return "runs diverged at some points (non-finite results): left out of those points, counted there"
-
-
 def render_curves(result: dict) -> str:
     """Terminal: per curve, its points as ``x = value: mean [lo, hi]`` (long curves thinned)."""
-    lines = [
-        f"{result['experiment']}: {result['title']}  ({result['runs']} runs per point"
-        f"{', quick variant' if result.get('quick') else ''}; mean [95 % interval])"
-    ]
-    for c in result["curves"]:
-        lines.append(f"  {METHOD_LABELS.get(c['method'], c['method'])}, {c['quantity']}:")
-        nan = _NAN_TEXT.get(c["quantity"], report.NA)
-        every = max(1, len(c["x"]) // 12)  # long curves (the kidnapping) are printed thinned; the JSON has them all
-        for x, p in list(zip(c["x"], _points(c)))[::every]:
-            value = report.interval(p, 1, nan)
-            pad = " " * max(0, 8 - len(value.split(" ", 1)[0]))  # the mean right-aligned in 8 characters
-            lines.append(f"    {result['x_label']} = {x:g}: {pad}{value}")
-        if "before_mm" in c:
-            lines.append(
-                f"    mean error over the 5 s before: {report.number(c['before_mm'], 1)} mm, "
-                f"over 5–15 s after: {report.number(c['after_mm'], 1)} mm"
-            )
-        if note := _diverged_text(c):
-            lines.append(f"    {note}")
-    if result.get("notes"):
-        lines.append(result["notes"])
-    return "\n".join(lines)
+    return curve_results.render(result, METHOD_LABELS, _NAN_TEXT)
 
 
 def markdown_curves(result: dict) -> str:
     """Markdown: one line per curve, one column per point."""
-    xs = result["curves"][0]["x"]
-    title = f"**{result['experiment']}** — {result['title']} ({result['runs']} runs per point; mean [95 % interval])"
-    rows = []
-    for c in result["curves"]:
-        nan = _NAN_TEXT.get(c["quantity"], report.NA)
-        cells = [report.interval(p, 1, nan) for p in _points(c)]
-        rows.append([METHOD_LABELS.get(c["method"], c["method"]), c["quantity"], *cells])
-    return report.markdown(["method", "quantity", *(f"{result['x_label']} = {x:g}" for x in xs)], rows, title)
+    return curve_results.markdown(result, METHOD_LABELS, _NAN_TEXT)
+
+
+def _plot_options(result: dict) -> dict:
+    marker = (0.0, "kidnapping") if result["experiment"] == "kidnapping" else None
+    return {"labels": METHOD_LABELS, "title": plot_title, "wrap": wrap_title, "marker": marker}
 
 
 def _draw_curves(result: dict):
     """The figure of :func:`plot_curves`."""
-    import matplotlib.pyplot as plt
-
-    quantities = sorted(
-        {c["quantity"] for c in result["curves"]}, key=lambda q: [c["quantity"] for c in result["curves"]].index(q)
-    )
-    fig, axes = plt.subplots(
-        1, len(quantities), figsize=(6 * len(quantities), 4.6), squeeze=False, layout="constrained"
-    )
-    for ax, q in zip(axes[0], quantities):
-        for c in (c for c in result["curves"] if c["quantity"] == q):
-            x, m = np.array(c["x"]), np.array(c["mean"], float)
-            ci = np.array(c["ci95"], float)
-            (line,) = ax.plot(x, m, "o-", ms=3, label=METHOD_LABELS.get(c["method"], c["method"]))
-            # errors are ≥ 0: a symmetric interval's lower end below 0 is drawn at 0
-            ax.fill_between(x, np.maximum(ci[:, 0], 0.0), ci[:, 1], color=line.get_color(), alpha=0.2, lw=0)
-        if result["experiment"] == "kidnapping" or "kidnapping" in result["x_label"]:
-            ax.axvline(0.0, color="0.3", ls="--", lw=1.0, label="kidnapping")
-        ax.set_xlabel(result["x_label"])
-        ax.set_ylabel(q)
-        if result.get("x_log"):
-            ax.set_xscale("log")
-            xs = sorted({v for c in result["curves"] if c["quantity"] == q for v in c["x"]})
-            ax.set_xticks(xs, [f"{v:g}" for v in xs])  # the data's x, not powers of ten
-            ax.minorticks_off()
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-    # the panels share their curves: one legend, under them (inside, they would hide curves)
-    handles, texts = axes[0][0].get_legend_handles_labels()
-    handles.append(plt.Rectangle((0, 0), 1, 1, color="0.5", alpha=0.3, lw=0))
-    texts.append("95 % CI of the mean")
-    fig.legend(handles, texts, loc="outside lower center", ncol=len(texts), fontsize=8)
-    title = plot_title(result).split("\n")
-    title[0] = f"{title[0]} ({result['runs']} runs per point)"
-    fig.suptitle("\n".join(wrap_title(t, 75 * len(quantities)) for t in title), fontsize=10)
-    return fig
+    return curve_results.draw(result, **_plot_options(result))
 
 
 def plot_curves(result: dict, path: str) -> None:
     """The curves, one panel per quantity, with their 95 % intervals; a PNG at ``path``."""
-    import matplotlib.pyplot as plt
-
-    fig = _draw_curves(result)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    curve_results.plot(result, path, **_plot_options(result))
 
 
 def curve_experiment(
@@ -204,24 +103,21 @@ def curve_experiment(
     notes: str = "",
     x_log: bool = False,
 ) -> Experiment:
-    """A figure experiment: ``summarize(raw, cells, quick)`` gives its curves."""
-
+    """A figure experiment: ``summarize(raw, cells, quick)`` gives its curves (:mod:`jaxnav.experiments.curves`)."""
     CELLS_BY_NAME[name] = cells
-
-    def summarize_all(raw, cell_list, quick):
-        return {"x_label": x_label, "x_log": x_log, "curves": summarize(raw, cell_list, quick), "notes": notes}
-
-    return Experiment(
+    exp = curve_results.curve_experiment(
         name,
         title,
+        x_label,
         cells,
-        summarize_all,
-        render_curves,
-        markdown_curves,
-        plot_curves,
+        summarize,
         notes,
+        x_log,
+        METHOD_LABELS,
+        _NAN_TEXT,
         compiler_options=sw.LIGHT_COMPILE,
     )
+    return replace(exp, render=render_curves, markdown=markdown_curves, plot=plot_curves)
 
 
 # ---------------------------------------------------------------------------
@@ -267,7 +163,7 @@ def _fig35_summary(raw, cells, quick):
     diverged = stats.diverged_runs(r["sums"], r["counts"])  # the sums are 0, never NaN, where nothing was detected
     per_run = np.where(r["counts"] > 0, r["sums"] / np.maximum(r["counts"], 1), np.nan)  # [R, bins]
     bins = range(per_run.shape[1])
-    curve = _summaries(DETECTION_BINS, [per_run[:, k] for k in bins], [diverged] * len(bins))
+    curve = curve_results.summarize_points(DETECTION_BINS, [per_run[:, k] for k in bins], [diverged] * len(bins))
     curve["samples"] = np.asarray(r["counts"])[~diverged].sum(axis=0).astype(int).tolist()
     return [{"method": "pf_slam", "quantity": "tag error after the n-th detection (mm)", **curve}]
 
@@ -306,7 +202,9 @@ def _fig37_summary(raw, cells, quick):
         diverged = [diverged_in(raw[c.id]) for c in members]
         for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
             per_point = [raw[c.id][col] for c in members]
-            curves.append({"method": method, "quantity": label, **_summaries(xs, per_point, diverged)})
+            curves.append(
+                {"method": method, "quantity": label, **curve_results.summarize_points(xs, per_point, diverged)}
+            )
     return curves
 
 
@@ -349,7 +247,11 @@ def _fig44_summary(raw, cells, quick):
         for col, label in (("dr_mm", "robot error dr (mm)"), ("dt_mm", "tag error dt (mm)")):
             per_point = [np.concatenate([raw[c.id][col] for c in members]) for members in at]
             curves.append(
-                {"method": method, "quantity": label, **_summaries([1000 * s for s in sides], per_point, diverged)}
+                {
+                    "method": method,
+                    "quantity": label,
+                    **curve_results.summarize_points([1000 * s for s in sides], per_point, diverged),
+                }
             )
     return curves
 
@@ -407,7 +309,9 @@ def _kidnap_summary(raw, cells, quick):
             {
                 "method": c.method,
                 "quantity": "robot error (mm)",
-                **_summaries([(i - k) * dt for i in window], [err[:, i] for i in window], [diverged] * len(window)),
+                **curve_results.summarize_points(
+                    [(i - k) * dt for i in window], [err[:, i] for i in window], [diverged] * len(window)
+                ),
                 "before_mm": stats.summarize(err[:, max(0, k - 50) : k].mean(axis=1), diverged=diverged).mean,
                 "after_mm": stats.summarize(err[:, k + 50 : k + 150].mean(axis=1), diverged=diverged).mean,
             }

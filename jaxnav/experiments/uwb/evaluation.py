@@ -15,7 +15,9 @@
   (``robot_likelihood="mixture"``);
 * ``fastslam``: FastSLAM 2.0 with the same range model and the anchors unknown, each anchor one
   Gaussian per particle, started straight ahead of the robot at its first range with the ring's spread
-  (:data:`~jaxnav.models.observation.RANGE_ONLY`): the comparator without a particle set per anchor.
+  (:data:`~jaxnav.models.observation.RANGE_ONLY`): the comparator without a particle set per anchor;
+* ``fastslam_ring``: the same FastSLAM with each particle starting the anchor at its own point of the
+  ring (:data:`~jaxnav.models.observation.RANGE_ONLY_RING`): the particle set holds the ring jointly.
 
 Every filter starts from the known initial pose (ground truth, heading from the first 0.1 m of path).
 Each particle filter runs ``runs`` times with different keys (one compiled program); the table gives
@@ -26,8 +28,10 @@ alignment).
 **Settings** (:class:`UWBSettings`), set once: wheel-speed noise 0.05 m/s per wheel (the file
 states 0.01; with 0.02 SLAM's robot error is 20 % larger), the range model ``σ = 0.15`` m, bias ``b = 0.1`` m and ``ν = 4`` (near
 the dataset's residual statistics: mean +0.12 m, standard deviation 0.11 m, a tail to 0.66 m),
-1000 MCL particles, 300 robot particles and 1000 per anchor for SLAM (a ring of 1–3 m radius needs
-them; with 300 the anchors are two to three times farther off), PS-SLAM's lag 10 and jitter 1 cm. The
+1000 MCL particles, 300 robot particles and 1000 per anchor for PF-SLAM and PS-SLAM (a ring of 1–3 m
+radius needs them; with 300 the anchors are two to three times farther off), 1000 particles for
+FastSLAM (about 60 % of PF-SLAM's time; with 300 the ring start's errors are two to three times as
+large), PS-SLAM's lag 10 and jitter 1 cm. The
 bias is given, not learned: with ``b = 0`` MCL's error doubles (0.12–0.14 m against 0.06 m).
 """
 
@@ -52,9 +56,9 @@ from jaxnav.slam import fastslam, pf_slam, ps_slam
 
 __all__ = ["ALGORITHMS", "SLAM", "UWBSettings", "UWBResult", "run_algorithm", "run_study", "format_table", "plot_study"]
 
-ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "pf_slam", "ps_slam")
+ALGORITHMS = ("dead_reckoning", "ekf", "ukf", "mcl", "mcl_t", "fastslam", "fastslam_ring", "pf_slam", "ps_slam")
 """The algorithms :func:`run_algorithm` runs, in the order of the table."""
-SLAM = ("fastslam", "pf_slam", "ps_slam")
+SLAM = ("fastslam", "fastslam_ring", "pf_slam", "ps_slam")
 """The algorithms that map the anchors."""
 DETERMINISTIC = ("dead_reckoning", "ekf", "ukf")
 """The algorithms that use no key (run once)."""
@@ -70,7 +74,8 @@ class UWBSettings:
         range_sd, range_bias, range_dof: the range model (m, m, degrees of freedom).
         initial_sd: spread of MCL's initial particles around the known start (m, m, rad).
         mcl_particles: MCL's particles.
-        slam_particles, anchor_particles: SLAM's robot particles and particles per anchor.
+        slam_particles, anchor_particles: PF-SLAM's and PS-SLAM's robot particles and particles per anchor.
+        fastslam_particles: FastSLAM's particles.
         ps_lag, ps_jitter: PS-SLAM's lag and anchor jitter (m).
     """
 
@@ -83,6 +88,7 @@ class UWBSettings:
     mcl_particles: int = 1000
     slam_particles: int = 300
     anchor_particles: int = 1000
+    fastslam_particles: int = 1000
     ps_lag: int = 10
     ps_jitter: float = 0.01
 
@@ -138,21 +144,24 @@ def _kalman(module, config_type):
     return run
 
 
-def _fastslam(key, seq, s):
-    controls, obs, start = _inputs(seq)
-    config = fastslam.FastSLAMConfig(
-        num_particles=s.slam_particles,
-        num_landmarks=seq.anchors.shape[0],
-        version=2,
-        motion_model=seq.motion_model,
-        observation_model="range_only",
-        ess_threshold=0.5,
-    )
-    params = fastslam.FastSLAMParams(s.motion_noise(), s.range_noise())
-    k_init, k_run = jax.random.split(key)
-    state = fastslam.init(k_init, config, params, start)
-    final, trace = fastslam.run(k_run, state, config, params, controls, obs)
-    return trace.estimate, fastslam.map_estimate(final)[0]
+def _fastslam(observation_model):
+    def run(key, seq, s):
+        controls, obs, start = _inputs(seq)
+        config = fastslam.FastSLAMConfig(
+            num_particles=s.fastslam_particles,
+            num_landmarks=seq.anchors.shape[0],
+            version=2,
+            motion_model=seq.motion_model,
+            observation_model=observation_model,
+            ess_threshold=0.5,
+        )
+        params = fastslam.FastSLAMParams(s.motion_noise(), s.range_noise())
+        k_init, k_run = jax.random.split(key)
+        state = fastslam.init(k_init, config, params, start)
+        final, trace = fastslam.run(k_run, state, config, params, controls, obs)
+        return trace.estimate, fastslam.map_estimate(final)[0]
+
+    return run
 
 
 def _mcl(sensor):
@@ -202,7 +211,8 @@ _RUNNERS: dict[str, Callable] = {
     "ukf": _kalman(ukf, ukf.UKFConfig),
     "mcl": _mcl(ro.RANGE_ONLY_SENSOR),
     "mcl_t": _mcl(ro.RANGE_ONLY_T_SENSOR),
-    "fastslam": _fastslam,
+    "fastslam": _fastslam("range_only"),
+    "fastslam_ring": _fastslam("range_only_ring"),
     "pf_slam": _slam(pf_slam),
     "ps_slam": _slam(ps_slam),
 }
@@ -284,10 +294,11 @@ _COLORS = {
     "mcl": "tab:red",
     "mcl_t": "tab:orange",
     "fastslam": "tab:blue",
+    "fastslam_ring": "tab:brown",
     "pf_slam": "tab:olive",
     "ps_slam": "tab:cyan",
 }
-_MARKERS = {"fastslam": "s", "pf_slam": "D", "ps_slam": "v"}
+_MARKERS = {"fastslam": "s", "fastslam_ring": "P", "pf_slam": "D", "ps_slam": "v"}
 
 
 def _draw(seq: data.UWBSequence, results: Sequence[UWBResult]):

@@ -228,9 +228,9 @@ def run_method(key: jax.Array, method: str, setting: RangeSetting, world: World)
     k_init, k_run = jax.random.split(key)
     state = module.init(k_init, config, params, setting.start_pose())
 
-    def body(state, inputs):
+    def body(state, inputs):  # the pure kernel: this runs inside the cell's own jit and vmap
         k, u, obs = inputs
-        state, info = module.step(k, state, config, params, u, obs)
+        state, info = module.kernel(k, state, config, params, u, obs)
         return state, (info.estimate, module.map_estimate(state)[0])
 
     keys = jax.random.split(k_run, controls.shape[0])

@@ -76,6 +76,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
+    return value
+
+
 def _seed(text: str) -> int:
     value = _integer(text)
     if not 0 <= value < 2**32:
@@ -497,6 +504,13 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     if not args.name:
         raise ValueError("name an experiment (see 'jaxnav experiments list')")
     exp = registry.get(args.name)
+    distributed = args.distributed or any(
+        x is not None for x in (args.coordinator, args.num_processes, args.process_id)
+    )
+    if distributed:  # before anything starts a device
+        from jaxnav.core import processes
+
+        processes.initialize(args.coordinator, args.num_processes, args.process_id)
     _check_out_dir("--out", args.out)
     stem = registry.output_stem(args.out, exp.name, args.quick)
     _check_out_kinds("--out", args.out, [stem + ext for ext in (".runs.json", ".json", ".md", ".png")])
@@ -504,10 +518,12 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
     _check_memory(2 * 8 * 64 * cells * args.runs, f"--runs ({args.runs})")  # keys and results: ~64 numbers a run
     import jax
 
-    print(
-        f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
-        f"output in {args.out}{' (quick variant)' if args.quick else ''}"
-    )
+    first = jax.process_index() == 0  # under jax.distributed, process 0 reports and writes
+    if first:
+        print(
+            f"jaxnav {__version__}: {exp.name}: {exp.title}; {args.runs} runs per setting, seed {args.seed}, "
+            f"output in {args.out}{' (quick variant)' if args.quick else ''}"
+        )
     with warnings.catch_warnings():  # a warning (a checkpoint read unverified) is one line too
         warnings.showwarning = _warn_line(f"jaxnav {args.command}")
         result = registry.run(
@@ -521,7 +537,10 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
             workers=args.workers,
             fresh=args.fresh,
             plot=False,
+            devices=args.devices,
         )
+    if not first:
+        return 0
     print(exp.render(result))
     print(f"wrote {stem}.json and {stem}.md")
     _write_plot(lambda path: exp.plot(result, path), f"{stem}.png")
@@ -876,7 +895,25 @@ actions:
         "--workers",
         type=_positive_int,
         default=None,
-        help="chunks run at once (default: up to 4 on a CPU, its core count; 1 on a GPU)",
+        help="chunks run at once (default: up to 4 on a CPU, its core count; 1 on a GPU or over devices)",
+    )
+    xp.add_argument(
+        "--devices",
+        type=_positive_int,
+        default=None,
+        help="devices a call spreads its chunks over, one each (default: all; the numbers do not depend on it)",
+    )
+    xp.add_argument(
+        "--distributed",
+        action="store_true",
+        help="join a jax.distributed job, read from the environment (SLURM, Open MPI); process 0 writes",
+    )
+    xp.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="address of process 0 (--distributed)")
+    xp.add_argument(
+        "--num-processes", type=_positive_int, default=None, metavar="N", help="processes in the job (--distributed)"
+    )
+    xp.add_argument(
+        "--process-id", type=_non_negative_int, default=None, metavar="ID", help="this process's id (--distributed)"
     )
     xp.add_argument(
         "--fresh",

@@ -84,6 +84,8 @@ SLOW_FILES = (
     "tests/test_cli.py",
     "tests/experiments/test_ir_experiments.py",
     "tests/slam/test_hf_slam_runs.py",
+    "tests/core/test_processes.py",
+    "tests/core/test_devices.py",
     "tests/core/test_resampling_exact.py",
     "tests/localization/test_rfid_anchor.py",
     "tests/localization/test_localization_agreement.py",

@@ -38,7 +38,13 @@ def _hand_written_pages() -> list[pathlib.Path]:
     return sorted(pages)
 
 
-EXAMPLE_PAGES = ("README.md", "docs/index.md", "docs/getting-started.md", "docs/interface.md")
+EXAMPLE_PAGES = (
+    "README.md",
+    "docs/index.md",
+    "docs/getting-started.md",
+    "docs/interface.md",
+    "docs/guides/scaling-out.md",
+)
 
 # Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
 # {page: null, or the traceback of the block that failed}.

@@ -21,9 +21,11 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Mapping
+from typing import Any
 
 import jax
 
+from jaxnav.core import processes
 from jaxnav.core.filter import check_key
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
@@ -72,6 +74,7 @@ def run(
     workers: int | None = None,
     fresh: bool = False,
     plot: bool = True,
+    devices: Any = None,
 ) -> dict:
     """Run experiment ``name`` with ``runs`` seeded runs per cell; write ``NAME.json/.md/.png`` to ``out_dir``.
 
@@ -90,7 +93,9 @@ def run(
     and starts again. A checkpoint that cannot be resumed (damaged, of another sweep, of
     another chunk size: :mod:`jaxnav.experiments.sweep`) raises a one-line ``ValueError``
     naming it. ``workers`` chunks run at once (default
-    :func:`jaxnav.experiments.sweep.default_workers`). Runs that diverged are left out of
+    :func:`jaxnav.experiments.sweep.default_workers`), each a chunk per device of ``devices``
+    (:func:`jaxnav.core.batch.run_devices`: every device by default; the numbers do not
+    depend on it). Runs that diverged are left out of
     the summaries and counted in the result (``diverged_runs``) and its tables.
 
     Every file is written atomically (a temporary file in ``out_dir``, then renamed): a file that
@@ -125,10 +130,11 @@ def run(
         batching=exp.batching,
         workers=workers,
         fresh=fresh,
+        devices=devices,
     )
     result = exp.summarize(raw, cells, quick)
     result = {"experiment": name, "title": exp.title, "runs": int(runs), "quick": bool(quick), **result}
-    if out_dir is not None:
+    if out_dir is not None and processes.is_first():  # under jax.distributed, process 0 writes
         stem = output_stem(out_dir, name, quick)
         kept = f"the runs are kept in {checkpoint}: running this again writes the results without computing them"
         markdown = exp.markdown(result) + "\n"

@@ -61,13 +61,24 @@ file system or a lost permission raise an ``OSError`` naming the file and the
 cause in words (its ``errno`` is the original one), and leave the checkpoint as
 it was after the last chunk saved, to resume from.
 
-Parallelism: ``workers`` chunks run at once in threads (XLA releases the
+Devices: one call evaluates consecutive chunks of a cell, one per device
+(every device by default: :func:`jaxnav.core.batch.run_devices`), each
+with the program one device runs on one chunk, so the numbers and the
+checkpoint are the same on any number of devices and a sweep interrupted on
+one number resumes on another.
+
+Many processes: under ``jax.distributed`` (:mod:`jaxnav.core.processes`) the devices are those of
+every process, each process runs the same sweep, process 0 reads the checkpoint and tells the
+others what it holds, and only process 0 writes it; every process returns the same results.
+
+Parallelism: ``workers`` calls run at once in threads (XLA releases the
 GIL; by default one per core on a CPU, up to 4: :func:`default_workers`), while the cells compile one after
 the other in another thread: a cell's chunks start as soon as it is
 compiled. Results are still saved in chunk order, so the numbers and the
 checkpoint do not depend on ``workers``. On a CPU, the chunks of a cell whose program calls
 LAPACK (FastSLAM 2.0's Cholesky factors, an EKF's solves) run one at a time
-(:func:`calls_lapack`: two at once can hang XLA:CPU); other cells' chunks run beside them.
+(:func:`jaxnav.core.batch.calls_lapack`: two at once can hang XLA:CPU, and so can one spread over several
+devices: its chunks then run on one device, one after the other); other cells' chunks run beside them.
 
 Summaries of the runs (means, intervals, runs left out and counted) are in
 :mod:`jaxnav.experiments.stats`.
@@ -79,7 +90,6 @@ import hashlib
 import json
 import os
 import sys
-import threading
 import time
 import warnings
 import zlib
@@ -90,7 +100,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxnav.core.batch import compiled_vmap
+from jaxnav.core import processes
+from jaxnav.core.batch import LAPACK_LOCK, calls_lapack, compiled_vmap, run_devices
 from jaxnav.core.filter import check_key
 from jaxnav.io._files import open_regular, require_regular, write_atomic
 
@@ -99,7 +110,6 @@ __all__ = [
     "run_key",
     "sweep",
     "default_workers",
-    "calls_lapack",
     "Progress",
     "UnverifiedCheckpointWarning",
     "FAST_COMPILE",
@@ -424,6 +434,23 @@ def _load(path: str | None, header: dict) -> dict | None:
     return data
 
 
+def _load_shared(path: str | None, header: dict) -> dict | None:
+    """:func:`_load` in process 0, its outcome (the checkpoint, none, or the error) in every process of a
+    ``jax.distributed`` job (:mod:`jaxnav.core.processes`): the others need not see the file."""
+    if jax.process_count() == 1:
+        return _load(path, header)
+    outcome: dict = {}
+    if processes.is_first():
+        try:
+            outcome["data"] = _load(path, header)
+        except ValueError as err:
+            outcome["error"] = str(err)
+    outcome = json.loads(processes.share_text(json.dumps(outcome)))
+    if "error" in outcome:
+        raise ValueError(outcome["error"])
+    return outcome["data"]
+
+
 def _kind(dtype: Any) -> str:
     """``"b"`` booleans, ``"i"`` integers, ``"f"`` anything else (floats)."""
     kind = np.dtype(dtype).kind
@@ -468,7 +495,7 @@ def _chunk_width(requested: int, runs: int, stored: int | None) -> int:
 
 def _save(path: str | None, data: dict) -> None:
     """Write the checkpoint with its checksum, atomically (module docstring)."""
-    if path is None:
+    if path is None or not processes.is_first():  # under jax.distributed, process 0 writes
         return
     record = {k: data[k] for k in _KEYS}
     record[_CHECKSUM] = _checksum(record)
@@ -481,16 +508,17 @@ def _save(path: str | None, data: dict) -> None:
     )
 
 
-def default_workers() -> int:
-    """Chunks evaluated at once by :func:`sweep` when ``workers`` is not given.
+def default_workers(devices: int = 1) -> int:
+    """Calls evaluated at once by :func:`sweep` when ``workers`` is not given, for a sweep over
+    ``devices`` devices (one chunk each per call).
 
-    On the CPU backend, up to 4 (at most the cores this process may use): one
+    On the CPU backend with one device, up to 4 (at most the cores this process may use): one
     XLA:CPU execution of a vmapped filter keeps barely more than one core
     busy, and two executions at once on two cores take about as long as one,
     nearly doubling the throughput.
-    On an accelerator, 1: one device runs one wide chunk at a time.
+    On an accelerator, or over several devices, 1: each device runs one wide chunk at a time.
     """
-    if jax.default_backend() != "cpu":
+    if jax.default_backend() != "cpu" or devices > 1:
         return 1
     try:
         cores = len(os.sched_getaffinity(0))
@@ -499,28 +527,9 @@ def default_workers() -> int:
     return max(1, min(4, cores))
 
 
-_LAPACK_LOCK = threading.Lock()
-"""Held while a program that calls LAPACK runs on the CPU (:func:`_evaluate`)."""
-
-
-def calls_lapack(exe: Any) -> bool:
-    """Whether compiled ``exe`` calls LAPACK (a Cholesky, LU, QR, SVD or eigen-decomposition custom call).
-
-    XLA:CPU runs a LAPACK call on a batch of many small matrices as tasks on the thread pool that
-    also runs the programs, and waits for them: two such programs started at once from two threads
-    can each hold a pool thread while waiting for tasks queued behind the other, and never finish
-    (measured with jax 0.10.2 on 2 cores: a loop over the Cholesky factors of 25,000 3 × 3 matrices,
-    started twice at once, hangs; one at a time, or beside programs without LAPACK, it does not).
-    """
-    try:
-        return 'custom_call_target="lapack_' in exe.as_text()
-    except Exception:  # an executable without HLO text: assume it may
-        return True
-
-
-def _compile_cell(fn, keys, shared, mode, compiler_options):
+def _compile_cell(fn, keys, shared, mode, compiler_options, devices):
     """The cell's executable, and whether its chunks must run one at a time (:func:`calls_lapack` on a CPU)."""
-    exe = compiled_vmap(fn, keys, shared=shared, mode=mode, compiler_options=compiler_options)
+    exe = compiled_vmap(fn, keys, shared=shared, mode=mode, compiler_options=compiler_options, devices=devices)
     return exe, jax.default_backend() == "cpu" and calls_lapack(exe)
 
 
@@ -530,7 +539,7 @@ def _evaluate(compiled, keys, shared):
     exe, exclusive = compiled.result()
     if not exclusive:
         return jax.device_get(exe(keys, *shared))
-    with _LAPACK_LOCK:
+    with LAPACK_LOCK:
         return jax.device_get(exe(keys, *shared))
 
 
@@ -547,6 +556,7 @@ def sweep(
     batching: str = "vmap",
     workers: int | None = None,
     fresh: bool = False,
+    devices: Any = None,
 ) -> dict[str, dict[str, np.ndarray]]:
     """Run ``runs`` seeded runs of every cell; resume from ``path`` if it holds finished chunks.
 
@@ -579,6 +589,10 @@ def sweep(
             the checkpoint and the numbers do not depend on ``workers``.
         fresh: ignore (and overwrite) an existing checkpoint at ``path`` instead of resuming
             it: use it after changing the code, which the checkpoint cannot detect.
+        devices: the devices one call spreads a cell's consecutive chunks over, one chunk per
+            device (:func:`jaxnav.core.batch.run_devices`: every device by default).
+            Each device runs the program of one chunk, so the numbers and the checkpoint are
+            the same on any number of devices, and a sweep resumes on another number.
 
     Raises:
         ValueError: bad arguments, or a checkpoint at ``path`` that cannot be resumed (module
@@ -605,9 +619,12 @@ def sweep(
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size}")
     if batching not in ("vmap", "map"):
         raise ValueError(f"batching must be 'vmap' or 'map', got {batching!r}")
-    workers = default_workers() if workers is None else workers
+    devices = run_devices(devices)
+    workers = default_workers(len(devices)) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if jax.process_count() > 1:  # every process must make the calls in one order (each is a collective)
+        workers, progress = 1, progress and processes.is_first()
     cells = [(c[0], c[1], tuple(c[2]) if len(c) > 2 else ()) for c in cells]
     ids = [c for c, _, _ in cells]
     if len(set(ids)) != len(ids):
@@ -623,7 +640,7 @@ def sweep(
     header = json.loads(json.dumps(header))  # as it reads back from the file (tuples are lists)
     if path is not None:  # refused before anything is computed, even when it would be written over
         require_regular(path, _NOT_REGULAR, missing_ok=True)
-    data = None if fresh else _load(path, header)
+    data = None if fresh else _load_shared(path, header)
     # whether the values read match the checksum they were written with (checked once the fields are, so a
     # checkpoint of other code is named as such); computed before the cells not yet run are added below
     intact = data is None or _CHECKSUM not in data or data[_CHECKSUM] == _checksum(data)
@@ -661,15 +678,21 @@ def sweep(
     if todo:
         data["chunk_size"] = width
 
-    # Every chunk still to run, in order: (cell_id, start, stop, keys of a full chunk: one compilation, runs
-    # of the chunk already stored). Chunk k holds runs k·width … k·width + width − 1 whatever was stored.
+    # Every call still to make, in order: (cell_id, start, stop, keys of full chunks, one per device: one
+    # compilation; runs already stored). Chunk k holds runs k·width … k·width + width − 1 whatever was
+    # stored; a call evaluates consecutive chunks, the last call of a cell padded with runs past R.
+    first = {cell_id: done[cell_id] // width * width for cell_id in ids}
+    chunks_left = max([-(-(runs - first[c]) // width) for c in ids if first[c] < runs], default=1)
+    if not processes.spans_processes(devices):  # every process must hold a block of every call
+        devices = devices[:chunks_left]  # no device without a chunk of its own
+    group = width * len(devices)
     work = []
     for cell_id, _fn, _shared in cells:
         base = cell_key(key, cell_id)
-        for start in range(done[cell_id] // width * width, runs, width):
-            idx = np.arange(start, start + width)
+        for start in range(first[cell_id], runs, group):
+            idx = np.arange(start, start + group)
             keys = jax.vmap(lambda r: jax.random.fold_in(base, r))(idx)
-            work.append((cell_id, start, min(start + width, runs), keys, max(done[cell_id] - start, 0)))
+            work.append((cell_id, start, min(start + group, runs), keys, max(done[cell_id] - start, 0)))
     shared_of = {cell_id: (fn, shared) for cell_id, fn, shared in cells}
     to_compile = len({cell_id for cell_id, *_ in work})
     bar = Progress(
@@ -690,7 +713,9 @@ def sweep(
         for cell_id, _, _, keys, _ in work:
             if cell_id not in compiled:
                 fn, shared = shared_of[cell_id]
-                compiled[cell_id] = compiler.submit(_compile_cell, fn, keys, shared, batching, compiler_options)
+                compiled[cell_id] = compiler.submit(
+                    _compile_cell, fn, keys, shared, batching, compiler_options, devices
+                )
         pending = [pool.submit(_evaluate, compiled[c], keys, shared_of[c][1]) for c, _, _, keys, _ in work]
         for (cell_id, start, stop, _, skip), future in zip(work, pending):
             result = future.result()

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav.core import batch
 from jaxnav.experiments import sweep as sw
 
 
@@ -178,7 +179,7 @@ print("done", sorted(out))
 
 def test_programs_that_call_lapack_run_one_at_a_time_and_finish():
     """Two chunks of a program that factorises 25,000 small matrices at a time, started together from two
-    worker threads, hang XLA:CPU (jax 0.10.2; :func:`jaxnav.experiments.sweep.calls_lapack`): the sweep runs
+    worker threads, hang XLA:CPU (jax 0.10.2; :func:`jaxnav.core.batch.calls_lapack`): the sweep runs
     such chunks one at a time and finishes (in a child process, which a hang would not leave: the
     test fails at its timeout instead). ``calls_lapack`` tells the programs apart."""
     import subprocess
@@ -189,8 +190,8 @@ def test_programs_that_call_lapack_run_one_at_a_time_and_finish():
     )
     assert proc.returncode == 0 and "done ['a', 'b']" in proc.stdout, proc.stderr[-2000:]
     x = jnp.ones((4, 3, 3)) + 3 * jnp.eye(3)
-    assert sw.calls_lapack(jax.jit(jnp.linalg.cholesky).lower(x).compile())
-    assert not sw.calls_lapack(jax.jit(jnp.sin).lower(x).compile())
+    assert batch.calls_lapack(jax.jit(jnp.linalg.cholesky).lower(x).compile())
+    assert not batch.calls_lapack(jax.jit(jnp.sin).lower(x).compile())
 
 
 # ---------------------------------------------------------------------------

@@ -279,7 +279,7 @@ def monte_carlo(
         chunk = -(-num_runs // len(devs))
     else:
         chunk = min(check_positive_int("chunk_size", chunk_size), num_runs)
-    if not processes.spans_processes(devs):  # every process must hold a block of every call
+    if not jit or not processes.spans_processes(devs):  # every process must hold a block of every call
         devs = devs[: -(-num_runs // chunk)]  # no device without a chunk of its own
     group = chunk * len(devs)  # runs per call: one chunk per device
     for i, arg in enumerate(run_args):

@@ -110,7 +110,7 @@ def _power_of_two(exponent: jax.Array, dtype) -> jax.Array:
     return jax.lax.bitcast_convert_type(biased << info.nmant, dtype)
 
 
-def _scaled_to_top(p: jax.Array) -> jax.Array:
+def _scaled_to_top(p: jax.Array, axis_name: str | None = None) -> jax.Array:
     """``p_i·2^(−e)`` with ``2^(e−1) ≤ max p < 2^e``, exactly, read from the bits of ``p [N]``; NaN, ``±inf``
     and negative entries (and ``−0``) give 0. (In the top binade, ``max p ≥ 2^(e_max − 1)``, ``e`` is
     one less: the largest weight is scaled into ``[1, 2)``.)
@@ -132,7 +132,8 @@ def _scaled_to_top(p: jax.Array) -> jax.Array:
     binade = 1 << info.nmant  # one step of the exponent field
     # the top binade is clamped into the one below it (never +inf): e is then one less, still exact
     key = jax.lax.bitcast_convert_type(jnp.minimum(bits, inf_bits - 1 - binade) + binade, p.dtype)
-    top = jax.lax.bitcast_convert_type(jnp.max(key), bits_type) - binade
+    largest = jnp.max(key) if axis_name is None else jax.lax.pmax(jnp.max(key), axis_name)  # exact either way
+    top = jax.lax.bitcast_convert_type(largest, bits_type) - binade
     biased, normal_bits = top >> info.nmant, binade
     length = info.bits - jax.lax.clz(top)  # of the mantissa, when the largest weight is subnormal
     top_exp = jnp.where(biased > 0, biased + info.minexp, length + info.minexp - info.nmant)
@@ -146,7 +147,31 @@ def _scaled_to_top(p: jax.Array) -> jax.Array:
     return jnp.where(bits >= normal_bits, normal, mantissa * sub_scale)
 
 
-def integer_cdf(probabilities: jax.Array) -> IntegerCDF:
+def _global_two_level_sum(x: jax.Array, axis_name: str) -> jax.Array:
+    """:func:`_two_level_sum` of the whole vector whose blocks ``x`` are, one per device of ``axis_name``
+    (inside ``jax.shard_map``), bit for bit: the same rows of 1024 summed the same way, then their sums
+    gathered in order. A block that is not whole rows gathers the vector itself."""
+    size = x.shape[0] * jax.lax.axis_size(axis_name)
+    if size > _SUM_BLOCK and x.shape[0] % _SUM_BLOCK == 0:
+        rows = jnp.sum(x.reshape(-1, _SUM_BLOCK), axis=1)
+        return jnp.sum(jax.lax.all_gather(rows, axis_name, tiled=True))
+    return _two_level_sum(jax.lax.all_gather(x, axis_name, tiled=True))
+
+
+def _global_cdf(cdf: U64, axis_name: str) -> tuple[U64, U64]:
+    """The whole vector's CDF from each device's own (``cdf``, inside ``jax.shard_map``), and its total:
+    the devices' totals gathered, their exclusive prefix added to each block (integer sums: exact)."""
+    last = U64(cdf.hi[-1], cdf.lo[-1])
+    totals = u64.cumsum(U64(*(jax.lax.all_gather(w, axis_name) for w in last)))  # [D], inclusive
+    me = jax.lax.axis_index(axis_name)
+    before = u64.where(me > 0, u64.take(totals, jnp.maximum(me - 1, 0)), u64.constant(0))
+    total = U64(totals.hi[-1], totals.lo[-1])
+    return u64.add(
+        cdf, U64(jnp.broadcast_to(before.hi, cdf.hi.shape), jnp.broadcast_to(before.lo, cdf.lo.shape))
+    ), total
+
+
+def integer_cdf(probabilities: jax.Array, axis_name: str | None = None) -> IntegerCDF:
     """Integer weights ``q_i = ⌊p_i·2^k⌋`` and their exact CDF, for non-negative ``probabilities [N]``.
 
     ``p`` need not be normalised; NaN, ``±inf`` and negative entries count as zero.
@@ -159,16 +184,24 @@ def integer_cdf(probabilities: jax.Array) -> IntegerCDF:
     that are all subnormal keep their relative sizes and a zero among them is never
     drawn. An input with no positive entry is treated as uniform. Exact for any N
     (the sums are integer sums).
+
+    ``axis_name`` (inside ``jax.shard_map``): ``probabilities`` is this device's block of a vector
+    spread over the devices of that mesh axis, in order; the weights, CDF values and total returned
+    are this block's entries of the whole vector's, bit for bit (the largest weight and the float
+    total are the whole vector's, the CDF offset by the totals of the blocks before).
     """
-    p = _scaled_to_top(jax.lax.stop_gradient(probabilities))  # exact: the largest weight lies in [0.5, 2)
-    n = p.shape[0]
-    total = _two_level_sum(p)
+    p = _scaled_to_top(jax.lax.stop_gradient(probabilities), axis_name)  # exact: the largest weight in [0.5, 2)
+    n = p.shape[0] if axis_name is None else p.shape[0] * jax.lax.axis_size(axis_name)
+    total = _two_level_sum(p) if axis_name is None else _global_two_level_sum(p, axis_name)
     empty = ~(total > 0)
     p = jnp.where(empty, 1.0, p)
     total = jnp.where(empty, jnp.asarray(n, p.dtype), total)
     _, total_exp = jnp.frexp(total)
     q = u64.from_float(p * _power_of_two(TOTAL_BITS - total_exp, p.dtype))
     cdf = u64.cumsum(q)
+    if axis_name is not None:
+        cdf, whole = _global_cdf(cdf, axis_name)
+        return IntegerCDF(q, cdf, whole)
     return IntegerCDF(q, cdf, U64(cdf.hi[-1], cdf.lo[-1]))
 
 

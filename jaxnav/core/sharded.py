@@ -1,0 +1,121 @@
+"""Particles spread over devices: exact global resampling inside ``jax.shard_map``.
+
+When one filter's ``N`` particles are split over the ``D`` devices of a mesh axis (each device
+holding a block of ``N / D`` consecutive particles), resampling needs the whole weight vector's
+CDF. These functions run inside ``jax.shard_map`` on one device's block and give that device's
+part of what :mod:`jaxnav.core.resampling` gives on the whole vector, **bit for bit**:
+
+1. the integer weights (:mod:`jaxnav.core.integer_cdf`) use the whole vector's largest weight and
+   float total (a maximum over devices, and the same rows of 1024 summed in the same order);
+2. each device's integer CDF is offset by the exact 64-bit totals of the blocks before it (a
+   gather of ``D`` totals and their exclusive prefix);
+3. each device decides the cumulative offspring counts of its own particles against the global
+   strata (the same uniforms on every device, drawn from the same key);
+4. the ancestors of each device's block of ``M / D`` output slots come from the counts' histogram,
+   summed over devices and scattered (``psum_scatter``), plus the exclusive prefix of the blocks'
+   totals;
+5. :func:`take` fetches each slot's ancestor from whichever device holds it: the blocks travel
+   round the ring of devices (``ppermute``), ``D − 1`` steps, one block in flight per device.
+
+So from the same weights and key the ancestors equal those of the unsharded scheme exactly, at
+any ``D`` dividing ``N`` and ``M`` (:func:`resample_weights`). From log-weights (:func:`resample`)
+one step is not integer arithmetic: ``exp(ℓ − max ℓ)``, which two programs may round differently.
+XLA:CPU computes the unsharded one in an XNNPACK fusion together with the maximum, the sharded one
+(whose maximum is a collective) in its own loop: measured on 4 × 25,000 lognormal log-weights, 2 %
+of the weights differ in their last bit and 1–4 of 100,000 ancestors moved in 13 of 144 draws.
+Where every ``exp`` is exact (log-weights 0 or −∞) the ancestors are the same. Memory per device: its particles, one visiting block, and ``M`` integers
+for the histogram (and the stratified scheme's ``M`` uniforms). Systematic and stratified
+resampling are supported; the multinomial and residual schemes are not.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxnav.core import fastmath
+from jaxnav.core import weights as _w
+from jaxnav.core.integer_cdf import integer_cdf, scale
+from jaxnav.core.resampling import _COUNTS
+
+__all__ = ["SCHEMES", "resample", "resample_weights", "take"]
+
+SCHEMES = ("systematic", "stratified")
+"""The schemes :func:`resample` spreads over devices."""
+
+
+def resample(
+    key: jax.Array, log_weights: jax.Array, num_samples: int, axis_name: str, scheme: str = "systematic"
+) -> jax.Array:
+    """This device's ``num_samples / D`` ancestors (global indices in ``[0, N)``, int32, non-decreasing)
+    of the particles whose log-weights are spread over the ``D`` devices of mesh axis ``axis_name``.
+
+    Inside ``jax.shard_map``: ``log_weights [N / D]`` is this device's block (unnormalised; the
+    blocks in device order make the whole vector), ``num_samples`` the global ``M`` (a multiple of
+    ``D``), ``key`` the same on every device. Concatenated over the devices, the ancestors are
+    bit for bit those of :func:`jaxnav.core.resampling.systematic` (or ``stratified``) on the
+    whole vector with the same key (module docstring).
+    """
+    lw = _w.sanitize_log_weights(jax.lax.stop_gradient(log_weights))
+    probabilities = jnp.exp(lw - jax.lax.pmax(jnp.max(lw), axis_name))  # the whole vector's largest, exactly
+    return resample_weights(key, probabilities, num_samples, axis_name, scheme)
+
+
+def resample_weights(
+    key: jax.Array, weights: jax.Array, num_samples: int, axis_name: str, scheme: str = "systematic"
+) -> jax.Array:
+    """:func:`resample` from non-negative ``weights [N / D]`` (not logs; need not be normalised): bit for
+    bit the blocks of :func:`jaxnav.core.resampling.resample_weights` on the whole vector."""
+    if scheme not in SCHEMES:
+        raise ValueError(f"resampling scheme {scheme!r} cannot be spread over devices; choose one of {SCHEMES}")
+    size = jax.lax.axis_size(axis_name)
+    if num_samples % size:
+        raise ValueError(f"num_samples ({num_samples}) must be a multiple of the {size} devices of {axis_name!r}")
+    cdf = integer_cdf(weights, axis_name)
+    counts = _COUNTS[scheme](key, cdf, scale(cdf.total, num_samples, num_samples))  # C_i of this block
+    return _ancestors(counts, num_samples, weights.shape[0] * size, axis_name)
+
+
+def _ancestors(cumulative: jax.Array, num_samples: int, num_particles: int, axis_name: str) -> jax.Array:
+    """:func:`jaxnav.core.integer_cdf.ancestors_from_counts` of the whole count vector, this device's slots:
+    ``a_m = #{i : C_i ≤ m}``, the histogram of every device's counts summed and scattered in slot blocks."""
+    at = jnp.clip(cumulative, 0, num_samples)
+    hist = jnp.zeros((num_samples + 1,), jnp.int32).at[at].add((at >= 0).astype(jnp.int32), indices_are_sorted=True)
+    mine = jax.lax.psum_scatter(hist[:num_samples], axis_name, scatter_dimension=0, tiled=True)
+    totals = jax.lax.all_gather(jnp.sum(mine), axis_name)  # [D]: slots at or below each block, per block
+    me = jax.lax.axis_index(axis_name)
+    before = jnp.sum(jnp.where(jnp.arange(totals.shape[0]) < me, totals, 0))
+    return jnp.minimum(before + fastmath.int_cumsum(mine), num_particles - 1)
+
+
+def take(particles: Any, ancestors: jax.Array, axis_name: str) -> Any:
+    """The particles at global indices ``ancestors [m]`` (from :func:`resample`) for this device, from
+    the blocks ``particles`` (a pytree of ``[N / D, ...]`` leaves) spread over mesh axis ``axis_name``.
+
+    Each device's block travels once round the ring of devices (``D − 1`` ``ppermute`` steps), and
+    every device keeps the rows its ancestors name as the block passes: one block in flight per
+    device, never the whole set.
+    """
+    size = jax.lax.axis_size(axis_name)
+    leaves = jax.tree_util.tree_leaves(particles)
+    block = leaves[0].shape[0]
+    ring = [(i, (i + 1) % size) for i in range(size)]
+    owner = jax.lax.axis_index(axis_name)
+    visiting = particles
+    out = None
+    for step in range(size):
+        local = ancestors - owner * block
+        inside = (local >= 0) & (local < block)
+        rows = jax.tree_util.tree_map(lambda x: jnp.take(x, jnp.clip(local, 0, block - 1), axis=0), visiting)
+        if out is None:
+            out = rows
+        else:
+            out = jax.tree_util.tree_map(
+                lambda new, old: jnp.where(inside.reshape(inside.shape + (1,) * (new.ndim - 1)), new, old), rows, out
+            )
+        if step < size - 1:
+            visiting = jax.lax.ppermute(visiting, axis_name, ring)
+            owner = (owner - 1) % size
+    return out

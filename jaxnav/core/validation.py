@@ -39,6 +39,7 @@ __all__ = [
     "all_finite_within",
     "all_nonnegative",
     "all_positive",
+    "any_negative",
 ]
 
 MAX_MAGNITUDE = 1e6
@@ -173,6 +174,25 @@ def first_index(bad: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.argwhere(bad)[0]) if np.ndim(bad) else ()
 
 
+_FEW = 64
+"""Arrays of at most this many values are compared in Python: one step's control or observation
+slots, where NumPy's three calls (abs, compare, all) cost several times the comparisons."""
+
+
+def _all_within(v: np.ndarray, limit: float) -> bool:
+    """Every entry of ``v`` finite with ``|v| ≤ limit`` (NaN and ±inf compare False)."""
+    if v.size <= _FEW:
+        return all(-limit <= e <= limit for e in v.ravel().tolist())
+    return bool((np.abs(v) <= limit).all())
+
+
+def any_negative(v: np.ndarray) -> bool:
+    """Whether an entry of the host array ``v`` is below zero (NaN is not), in Python for a few values."""
+    if v.size <= _FEW:
+        return any(e < 0 for e in v.ravel().tolist())
+    return bool((v < 0).any())
+
+
 def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
     """Every entry of ``x`` must be finite with ``|x| ≤ limit`` (skipped for tracers).
 
@@ -181,7 +201,7 @@ def check_magnitude(name: str, x: Any, limit: float = MAX_MAGNITUDE) -> None:
     v = _values(name, x)
     if v is None or v.dtype.kind not in "fiuc":
         return
-    if (np.abs(v) <= limit).all():  # one pass for the common case: NaN and ±inf compare False
+    if _all_within(v, limit):  # one pass for the common case: NaN and ±inf compare False
         return
     bad = ~np.isfinite(v) | (np.abs(v) > limit)
     if bad.any():
@@ -346,7 +366,7 @@ def check_slots(
     if values is None or not is_concrete((mask, values)):
         return
     v = np.asarray(values)
-    if (np.abs(v) <= MAX_MAGNITUDE).all():
+    if _all_within(v, MAX_MAGNITUDE):
         return  # the common case, in one pass: every value usable, valid slot or not (NaN and ±inf compare False)
     lead = v.shape[: np.ndim(mask)]
     valid = np.broadcast_to(np.asarray(mask).astype(bool), lead)

@@ -268,3 +268,20 @@ def test_one_initial_state_passed_again_and_again_is_checked_once():
     assert len(seen) == 2
     with pytest.raises(ValueError, match=r"state.particles holds 1 NaN"):
         step(jax.random.PRNGKey(0), _WalkState(jnp.zeros(4).at[2].set(jnp.nan)), _WalkConfig(), (), 1.0, 2.0)
+
+
+@pytest.mark.parametrize("size", [1, 3, 64, 65, 1000])
+def test_the_value_checks_answer_alike_for_few_and_many_values(size):
+    """Up to 64 values are compared in Python, more with NumPy: the same answers either way, for
+    finite values, NaN, ±inf, a value past the limit, and negative time steps."""
+    from jaxnav.core import validation as v
+
+    base = np.linspace(-1.0, 1.0, size).astype(np.float32)
+    assert v._all_within(base, 1e6) and v.any_negative(base)  # base[0] = -1
+    assert not v.any_negative(np.abs(base)) and not v.any_negative(np.full(size, np.nan, np.float32))
+    for bad in (np.nan, np.inf, -np.inf, 2e6):
+        x = base.copy()
+        x[size // 2] = bad
+        assert not v._all_within(x, 1e6)
+        with pytest.raises(ValueError, match="not finite or exceed"):
+            v.check_magnitude("controls", x)

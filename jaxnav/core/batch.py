@@ -103,6 +103,7 @@ def compiled_vmap(
     mode: str = "vmap",
     compiler_options: dict | None = None,
     devices: Any = 1,
+    lanes: int | None = None,
 ) -> Any:
     """``jax.jit(jax.vmap(fn))`` compiled for the shapes of ``args``, cached on the ``fn`` object.
 
@@ -133,9 +134,15 @@ def compiled_vmap(
     block with the program one device would run on it: the rows' values are bit for bit those of
     ``D`` separate calls of width ``rows / D``. The outputs come back as arrays sharded over the
     devices.
+
+    ``lanes`` (``"vmap"`` mode): each device's rows are vmapped ``lanes`` at a time, the groups one
+    after the other in a ``lax.map``; a row's value then depends on ``lanes`` alone, not on how many
+    rows a call or a device has (each device's rows must be a multiple of it).
     """
     if mode not in ("vmap", "map"):
         raise ValueError(f"mode must be 'vmap' or 'map', got {mode!r}")
+    if lanes is not None:
+        lanes = check_positive_int("lanes", lanes)
     devices = run_devices(devices)
     options = dict(compiler_options or {})
     shared = tuple(shared)
@@ -146,6 +153,7 @@ def compiled_vmap(
         mode,
         tuple(sorted(options.items())),
         tuple(d.id for d in devices),
+        lanes,
     )
     with _COMPILING:
         per_fn = _COMPILED.setdefault(fn, {})
@@ -156,6 +164,8 @@ def compiled_vmap(
 
             def batched(*all_args):
                 rows, common = all_args[:n], all_args[n:]
+                if mode == "vmap" and lanes is not None:
+                    return _in_lanes(lambda *r: fn(*r, *common), rows, lanes)
                 if mode == "vmap":
                     return jax.vmap(lambda *r: fn(*r, *common))(*rows)
                 return jax.lax.map(lambda r: fn(*r, *common), rows)
@@ -171,7 +181,7 @@ def compiled_vmap(
                 )
                 local = [d for d in devices if d.process_index == jax.process_index()][:1] or jax.local_devices()[:1]
                 one = compiled_vmap(
-                    fn, *blocks, shared=shared, mode=mode, compiler_options=compiler_options, devices=local
+                    fn, *blocks, shared=shared, mode=mode, compiler_options=compiler_options, devices=local, lanes=lanes
                 )
                 exe = _BlockByBlock(one, len(args), len(devices))
             else:
@@ -180,6 +190,16 @@ def compiled_vmap(
                     exe = processes.AcrossProcesses(exe, placement)
             per_fn[signature] = exe
     return per_fn[signature]
+
+
+def _in_lanes(row_fn: Callable, rows: tuple, lanes: int) -> Any:
+    """``vmap(row_fn)`` over ``rows`` (leading axis a multiple of ``lanes``), ``lanes`` rows at a time."""
+    count = np.shape(jax.tree_util.tree_leaves(rows)[0])[0]
+    if count % lanes:
+        raise ValueError(f"lanes ({lanes}) must divide the rows each device evaluates ({count})")
+    groups = jax.tree_util.tree_map(lambda x: x.reshape(count // lanes, lanes, *x.shape[1:]), rows)
+    out = jax.lax.map(lambda g: jax.vmap(row_fn)(*g), groups)
+    return jax.tree_util.tree_map(lambda x: x.reshape(count, *x.shape[2:]), out)
 
 
 class _BlockByBlock:
@@ -242,6 +262,7 @@ def monte_carlo(
     progress: Callable[[int, int], None] | None = None,
     jit: bool = True,
     devices: Any = None,
+    lanes: int | None = None,
 ) -> Any:
     """Evaluate ``fn(key_r, *args_r)`` for ``r = 0 … num_runs − 1``, vmapped in chunks.
 
@@ -267,6 +288,11 @@ def monte_carlo(
             number of them, or a sequence); one call evaluates a chunk on each device at once
             (module docstring), never more devices than there are chunks. Without ``jit``, one
             device.
+        lanes: vmap a chunk's runs ``lanes`` at a time, one group after the other
+            (:func:`compiled_vmap`): a run's value then depends on its key and ``lanes`` only,
+            bit for bit the same for any ``chunk_size`` (a multiple of ``lanes``; the default
+            chunk is rounded up to one) and any number of devices. Default: the whole chunk at
+            once, fastest, whose width decides the rounding.
 
     Returns:
         The pytree of ``fn``'s outputs with a leading axis of size ``num_runs``,
@@ -275,10 +301,17 @@ def monte_carlo(
     check_key(key)
     num_runs = check_positive_int("num_runs", num_runs)  # 2.5 is refused, never silently 2
     devs = run_devices(devices) if jit else (None,)
+    if lanes is not None and not jit:
+        raise ValueError("lanes needs jit=True (the groups run in a compiled loop)")
     if chunk_size is None:
         chunk = -(-num_runs // len(devs))
     else:
         chunk = min(check_positive_int("chunk_size", chunk_size), num_runs)
+    if lanes is not None:
+        lanes = check_positive_int("lanes", lanes)
+        if chunk_size is not None and chunk_size % lanes:
+            raise ValueError(f"chunk_size ({chunk_size}) must be a multiple of lanes ({lanes})")
+        chunk = -(-chunk // lanes) * lanes  # whole groups (a run past the end is padding)
     if not jit or not processes.spans_processes(devs):  # every process must hold a block of every call
         devs = devs[: -(-num_runs // chunk)]  # no device without a chunk of its own
     group = chunk * len(devs)  # runs per call: one chunk per device
@@ -288,9 +321,9 @@ def monte_carlo(
                 raise ValueError(
                     f"run_args[{i}] must have leading axis num_runs={num_runs}, got a leaf of shape {np.shape(leaf)}"
                 )
-    _check_chunk_fits(fn, key, run_args, chunk, chunk_size, num_runs, jit, devs)
+    _check_chunk_fits(fn, key, run_args, chunk, chunk_size, num_runs, jit, devs, lanes)
     keys = run_keys(key, num_runs)
-    batched = (lambda *a: compiled_vmap(fn, *a, devices=devs)(*a)) if jit else jax.vmap(fn)
+    batched = (lambda *a: compiled_vmap(fn, *a, devices=devs, lanes=lanes)(*a)) if jit else jax.vmap(fn)
 
     outputs = []
     for start in range(0, num_runs, group):
@@ -314,6 +347,7 @@ def _check_chunk_fits(
     num_runs: int,
     jit: bool,
     devices: tuple,
+    lanes: int | None = None,
 ) -> None:
     """Refuse a chunk that would exceed the device's memory (:mod:`jaxnav.core.memory`), before allocating it.
 
@@ -333,7 +367,7 @@ def _check_chunk_fits(
         run_args,
     )
     if jit:
-        exe = compiled_vmap(fn, keys, *args, devices=devices)
+        exe = compiled_vmap(fn, keys, *args, devices=devices, lanes=lanes)
         try:
             stats = exe.memory_analysis()
             need = stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes

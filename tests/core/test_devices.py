@@ -52,6 +52,10 @@ scale = np.linspace(1.0, 2.0, R).astype(np.float32)
 for d in (1, 3, None):
     out[f"mc{d}"] = bits(monte_carlo(filtered, jax.random.PRNGKey(3), R, scale, chunk_size=3, devices=d))
 
+# lanes of 2: the same bits whatever the chunk size (2, 4, 6, or the default) and device count
+for chunk, d in ((2, 1), (4, 1), (6, 3), (None, None)):
+    out[f"lanes{chunk}-{d}"] = bits(monte_carlo(filtered, jax.random.PRNGKey(3), R, scale, chunk_size=chunk, devices=d, lanes=2))
+
 def sweep_fn(key, scale):
     return {"mean_m": filtered(key, scale)["mean_m"]}
 
@@ -100,6 +104,24 @@ def test_monte_carlo_gives_the_same_bits_on_one_to_four_devices(four_devices):
     every output leaf (a mean, the last estimates, the ESS traces) is the same, bit for bit."""
     one = four_devices["mc1"]
     assert one and four_devices["mc3"] == one and four_devices["mcNone"] == one
+
+
+def test_with_lanes_the_bits_do_not_depend_on_the_chunk_size(four_devices):
+    """``lanes=2``: chunks of 2, 4 and 6 runs (6 on three devices) and the default (all runs at once over
+    four devices, rounded up to whole lanes) give the same bits for all 22 runs."""
+    first = four_devices["lanes2-1"]
+    assert first and all(four_devices[k] == first for k in ("lanes4-1", "lanes6-3", "lanesNone-None"))
+
+
+def test_lanes_must_divide_the_chunk():
+    from jaxnav.core import monte_carlo
+
+    with pytest.raises(ValueError, match="multiple of lanes"):
+        monte_carlo(lambda k: jax.random.normal(k), jax.random.PRNGKey(0), 8, chunk_size=6, lanes=4)
+    with pytest.raises(ValueError, match="lanes"):
+        monte_carlo(lambda k: jax.random.normal(k), jax.random.PRNGKey(0), 8, lanes=0)
+    with pytest.raises(ValueError, match="jit"):
+        monte_carlo(lambda k: jax.random.normal(k), jax.random.PRNGKey(0), 8, lanes=2, jit=False)
 
 
 def test_a_sweep_gives_the_same_bits_on_any_device_count_and_resumes_on_another(four_devices):

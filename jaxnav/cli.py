@@ -901,7 +901,7 @@ actions:
         "--devices",
         type=_positive_int,
         default=None,
-        help="devices a call spreads its chunks over, one each (default: all; the numbers do not depend on it)",
+        help="local devices a call spreads its chunks over, one each (default: all; the numbers do not change)",
     )
     xp.add_argument(
         "--distributed",

@@ -74,24 +74,24 @@ def calls_lapack(exe: Any) -> bool:
 
 def run_devices(devices: Any = None) -> tuple:
     """The devices a batch of runs is spread over: every device of the default backend (``None``:
-    ``jax.devices()``, this process's local devices, or every process's under
-    ``jax.distributed``: :mod:`jaxnav.core.processes`), the first ``n`` of them (an integer
-    ``n ≥ 1``), or the given sequence of distinct devices. ``ValueError`` naming ``devices``
-    otherwise."""
-    every = jax.devices()
+    ``jax.devices()``, this process's devices, or every process's under ``jax.distributed``:
+    :mod:`jaxnav.core.processes`), this process's first ``n`` (an integer ``n ≥ 1``; under
+    ``jax.distributed`` each process then computes every run itself, and process 0 writes), or the
+    given sequence of distinct devices. ``ValueError`` naming ``devices`` otherwise."""
     if devices is None:
-        return tuple(every)
+        return tuple(jax.devices())
     if isinstance(devices, (int, np.integer)) and not isinstance(devices, bool):
-        if not 1 <= devices <= len(every):
-            raise ValueError(f"devices must be between 1 and the {len(every)} device(s) there are, got {devices}")
-        return tuple(every[: int(devices)])
+        local = jax.local_devices()
+        if not 1 <= devices <= len(local):
+            raise ValueError(f"devices must be between 1 and the {len(local)} local device(s), got {devices}")
+        return tuple(local[: int(devices)])
     try:
         chosen = tuple(devices)
     except TypeError:
         chosen = ()
     if not chosen or not all(isinstance(d, jax.Device) for d in chosen) or len(set(chosen)) != len(chosen):
         raise ValueError(
-            f"devices must be None, a number of devices or a sequence of distinct jax devices, got {devices!r}"
+            f"devices must be None, a number of local devices or a sequence of distinct jax devices, got {devices!r}"
         )
     return chosen
 

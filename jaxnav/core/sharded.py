@@ -99,23 +99,19 @@ def take(particles: Any, ancestors: jax.Array, axis_name: str) -> Any:
     device, never the whole set.
     """
     size = jax.lax.axis_size(axis_name)
-    leaves = jax.tree_util.tree_leaves(particles)
-    block = leaves[0].shape[0]
+    block = jax.tree_util.tree_leaves(particles)[0].shape[0]
+    source, row = ancestors // block, ancestors % block  # the device holding each ancestor, its row there
     ring = [(i, (i + 1) % size) for i in range(size)]
-    owner = jax.lax.axis_index(axis_name)
+    owner = jax.lax.axis_index(axis_name)  # the device whose block is visiting
     visiting = particles
-    out = None
-    for step in range(size):
-        local = ancestors - owner * block
-        inside = (local >= 0) & (local < block)
-        rows = jax.tree_util.tree_map(lambda x: jnp.take(x, jnp.clip(local, 0, block - 1), axis=0), visiting)
-        if out is None:
-            out = rows
-        else:
-            out = jax.tree_util.tree_map(
-                lambda new, old: jnp.where(inside.reshape(inside.shape + (1,) * (new.ndim - 1)), new, old), rows, out
-            )
-        if step < size - 1:
-            visiting = jax.lax.ppermute(visiting, axis_name, ring)
-            owner = (owner - 1) % size
+    out = jax.tree_util.tree_map(lambda x: jnp.take(x, row, axis=0), visiting)
+    for _ in range(size - 1):
+        visiting = jax.lax.ppermute(visiting, axis_name, ring)
+        owner = (owner - 1) % size
+        here = source == owner
+        out = jax.tree_util.tree_map(
+            lambda x, kept: jnp.where(here.reshape(here.shape + (1,) * (x.ndim - 1)), jnp.take(x, row, axis=0), kept),
+            visiting,
+            out,
+        )
     return out

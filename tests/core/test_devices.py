@@ -6,15 +6,11 @@ The suite's own process has one CPU device; the checks run in a child process wi
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
 import jax
 import pytest
 
 from jaxnav.core import batch
+from tests import child_process
 
 _CHILD = r"""
 import json, sys, tempfile, os
@@ -89,14 +85,7 @@ print("RESULT " + json.dumps(out))
 
 @pytest.fixture(scope="module")
 def four_devices() -> dict:
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
-    proc = subprocess.run(
-        [sys.executable, "-c", _CHILD], capture_output=True, text=True, timeout=300, env=env, check=False
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    line = next(x for x in proc.stdout.splitlines() if x.startswith("RESULT "))
-    return json.loads(line[len("RESULT ") :])
+    return child_process.run(_CHILD, devices=4, timeout=300)
 
 
 def test_monte_carlo_gives_the_same_bits_on_one_to_four_devices(four_devices):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import subprocess
@@ -11,6 +10,7 @@ import sys
 import pytest
 
 from jaxnav.core import processes
+from tests import child_process
 
 _SWEEP = r"""
 import json, sys
@@ -58,8 +58,7 @@ def _result(proc: subprocess.Popen) -> dict:
         proc.kill()
         raise
     assert proc.returncode == 0, err[-3000:]
-    line = next(x for x in out.splitlines() if x.startswith("RESULT "))
-    return json.loads(line[len("RESULT ") :])
+    return child_process.result(out)
 
 
 def test_two_processes_write_the_checkpoint_one_process_writes(tmp_path):

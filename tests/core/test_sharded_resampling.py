@@ -6,11 +6,6 @@ read once when JAX starts); the suite's own process has one.
 
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-
 import jax
 import jax.numpy as jnp
 import pytest
@@ -18,6 +13,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxnav.core import sharded
+from tests import child_process
 
 _CHILD = r"""
 import functools, json
@@ -93,14 +89,7 @@ print("RESULT " + json.dumps(out))
 
 @pytest.fixture(scope="module")
 def four_devices() -> dict:
-    env = dict(os.environ)
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4").strip()
-    proc = subprocess.run(
-        [sys.executable, "-c", _CHILD], capture_output=True, text=True, timeout=600, env=env, check=False
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    line = next(x for x in proc.stdout.splitlines() if x.startswith("RESULT "))
-    return json.loads(line[len("RESULT ") :])
+    return child_process.run(_CHILD, devices=4, timeout=600)
 
 
 def test_spread_weights_give_the_unsharded_ancestors_exactly(four_devices):

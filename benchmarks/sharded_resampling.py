@@ -22,6 +22,20 @@ import sys
 import time
 
 
+def median_seconds(fn, inputs: tuple, repeats: int) -> tuple[float, object]:
+    """``(median seconds of repeats calls of fn(*inputs), its output)``, after one untimed call (the compilation)."""
+    import jax
+    import numpy as np
+
+    out = jax.block_until_ready(fn(*inputs))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*inputs))
+        times.append(time.perf_counter() - start)
+    return float(np.median(times)), out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.sharded_resampling", description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", default="1000000,10000000", help="particle counts, comma-separated")
@@ -45,13 +59,7 @@ def main(argv=None) -> int:
     spread_at = NamedSharding(mesh, P("particles"))
 
     def timed(fn, *inputs):
-        out = jax.block_until_ready(fn(*inputs))
-        times = []
-        for _ in range(args.repeats):
-            start = time.perf_counter()
-            jax.block_until_ready(fn(*inputs))
-            times.append(time.perf_counter() - start)
-        return float(np.median(times)), out
+        return median_seconds(fn, inputs, args.repeats)
 
     print(f"| N | one device (ms) | {args.devices} devices (ms) | ratio | same ancestors |")
     print("|---|---|---|---|---|")

@@ -71,6 +71,7 @@ def pytest_configure(config):
         from jax import monitoring
 
         monitoring.register_event_duration_secs_listener(_on_duration_event)
+        monitoring.register_event_listener(_on_event)
 
 
 # The slowest test files, slowest first (worker-seconds on two cores): collected first, so that xdist
@@ -106,6 +107,12 @@ _COMPILE_STAGES = {
     "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
     "/jax/core/compile/backend_compile_duration": "compile",
 }
+# Of the compile stage: programs loaded from the persistent cache, programs compiled, seconds loading.
+_CACHE_EVENTS = {
+    "/jax/compilation_cache/cache_hits": "loaded",
+    "/jax/compilation_cache/cache_misses": "compiled",
+}
+_CACHE_LOAD_EVENT = "/jax/compilation_cache/cache_retrieval_time_sec"
 _COMPILE_PROPERTY = "jax_compile_seconds"
 _stage_seconds: dict[str, float] = {}  # this test's seconds per stage, so far
 _compile_report: dict[str, dict[str, float]] = {}  # on the controller: test file -> stage -> seconds
@@ -121,9 +128,15 @@ def pytest_addoption(parser):
 
 
 def _on_duration_event(event: str, duration: float, **_: object) -> None:
-    stage = _COMPILE_STAGES.get(event)
+    stage = _COMPILE_STAGES.get(event) or ("load" if event == _CACHE_LOAD_EVENT else None)
     if stage is not None:
         _stage_seconds[stage] = _stage_seconds.get(stage, 0.0) + duration
+
+
+def _on_event(event: str, **_: object) -> None:
+    count = _CACHE_EVENTS.get(event)
+    if count is not None:
+        _stage_seconds[count] = _stage_seconds.get(count, 0.0) + 1
 
 
 @pytest.hookimpl(hookwrapper=True)
@@ -149,10 +162,12 @@ def pytest_runtest_logreport(report):
 def pytest_terminal_summary(terminalreporter, config):
     if not config.getoption("--compile-report") or not _compile_report:
         return
-    stages = list(_COMPILE_STAGES.values())
-    rows = sorted(_compile_report.items(), key=lambda kv: -sum(kv[1].values()))
+    stages = [*_COMPILE_STAGES.values(), "load", *_CACHE_EVENTS.values()]
+    rows = sorted(_compile_report.items(), key=lambda kv: -sum(kv[1].get(st, 0.0) for st in _COMPILE_STAGES.values()))
     totals = {st: sum(r.get(st, 0.0) for _, r in rows) for st in stages}
-    terminalreporter.write_sep("=", "JAX compile time by test file (seconds; --compile-report)")
+    terminalreporter.write_sep(
+        "=", "JAX compile time by test file (seconds; 'load': of compile, from the persistent cache; programs)"
+    )
     terminalreporter.write_line(" ".join(f"{st:>8}" for st in stages) + "  file")
     terminalreporter.write_line(" ".join(f"{totals[st]:8.1f}" for st in stages) + "  (all files)")
     for path, seconds in rows[:25]:

@@ -481,4 +481,10 @@ def build(spec: FilterSpec, module: str | None = None) -> Filter:
         fn.jitted = jitted  # type: ignore[attr-defined]
         fn.trace_count = lambda c=counter: c[0]  # type: ignore[attr-defined]
     run.jitted_donated = run_jit_donated  # type: ignore[attr-defined]
+
+    def check_run(key: Any, state: Any, config: Any, params: Any, *inputs: Any) -> tuple:
+        """``run``'s host checks of its arguments; returns the inputs as ``run`` passes them on."""
+        return checked(key, state, config, params, inputs, time_axis=True)[0]
+
+    run.check = check_run  # type: ignore[attr-defined]
     return Filter(step, run)

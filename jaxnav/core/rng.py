@@ -36,9 +36,10 @@ injection every 4. ``jax.random`` hashes the 64-bit position of each element
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -46,7 +47,7 @@ import numpy as np
 
 from jaxnav.core import fastmath
 
-__all__ = ["bits", "uniform", "normal"]
+__all__ = ["bits", "uniform", "normal", "particle_blocks"]
 
 _U32 = np.uint32
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
@@ -90,10 +91,13 @@ def _key_data(key: jax.Array) -> jax.Array:
     return jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
 
 
-def _hash_words(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.Array]:
-    """The two hash words of each element of ``shape`` (the element's flat position is the counter)."""
+def _hash_words(key: jax.Array, shape: tuple[int, ...], offset: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    """The two hash words of each element of ``shape`` (the element's flat position is the counter),
+    the positions starting at ``offset`` (a block of a larger draw) when given."""
     data = _key_data(key)
     position = jax.lax.iota(_U32, math.prod(shape)).reshape(shape)
+    if offset is not None:
+        position = position + offset
     return _threefry2x32(data[0], data[1], jnp.zeros(shape, _U32), position)
 
 
@@ -101,8 +105,8 @@ def _hash_words(key: jax.Array, shape: tuple[int, ...]) -> tuple[jax.Array, jax.
 # then one compiled program, which XLA contracts and fuses as it does jax.random's, so the floats agree
 # to the last bit.
 @functools.partial(jax.jit, static_argnums=(1, 2), inline=True)
-def _fast_bits(key: jax.Array, shape: tuple[int, ...], width: int) -> jax.Array:
-    hi, lo = _hash_words(key, shape)
+def _fast_bits(key: jax.Array, shape: tuple[int, ...], width: int, offset: jax.Array | None = None) -> jax.Array:
+    hi, lo = _hash_words(key, shape, offset)
     if width == 32:
         return hi ^ lo
     return (hi.astype(jnp.uint64) << np.uint64(32)) | lo.astype(jnp.uint64)
@@ -117,6 +121,50 @@ def _as_shape(shape: int | Sequence[int]) -> tuple[int, ...]:
     return (int(shape),) if isinstance(shape, int | np.integer) else tuple(int(s) for s in shape)
 
 
+# --------------------------------------------------------------------------- blocks of a draw over devices
+
+_BLOCKS: list[tuple[str, int]] = []  # (mesh axis, rows per device) while particle_blocks is open
+
+
+@contextlib.contextmanager
+def particle_blocks(axis_name: str, rows: int) -> Iterator[None]:
+    """While tracing inside it (inside ``jax.shard_map``), a draw of :func:`bits`, :func:`uniform` or
+    :func:`normal` whose leading axis is ``rows`` is this device's block of the draw of the whole
+    array, ``(rows · D, ...)`` over the ``D`` devices of mesh axis ``axis_name``, bit for bit.
+
+    A particle filter whose particles are spread over devices (``rows`` per device) traces its
+    motion model in this context, so that every particle moves with the noise it gets on one
+    device. A draw of another leading length is left as it is (the same on every device). Each
+    device hashes only its own positions (the Threefry counters of its block), on every backend;
+    where that form does not apply (another key implementation, ``jax_threefry_partitionable``
+    off) the whole array is drawn with ``jax.random`` and the block sliced from it. A motion model
+    that draws with ``jax.random`` directly would draw the same noise on every device: the models
+    of :mod:`jaxnav.models.motion` draw with this module.
+    """
+    _BLOCKS.append((axis_name, int(rows)))
+    try:
+        yield
+    finally:
+        _BLOCKS.pop()
+
+
+def _block_of(shape: tuple[int, ...]) -> tuple[tuple[int, ...], str] | None:
+    """The whole draw's shape and the mesh axis when a draw of ``shape`` is a device's block."""
+    if not _BLOCKS or not shape or shape[0] != _BLOCKS[-1][1]:
+        return None
+    axis_name, rows = _BLOCKS[-1]
+    return (rows * jax.lax.axis_size(axis_name), *shape[1:]), axis_name
+
+
+def _block_draw(key: jax.Array, shape: tuple[int, ...], whole: tuple[int, ...], axis_name: str, fast, plain):
+    """This device's block of a draw of ``whole``: ``fast(key, offset)`` over the block's own positions
+    when the fast form applies to ``whole``, else ``plain(key)`` of ``whole``, sliced."""
+    me = jax.lax.axis_index(axis_name)
+    if fast is not None:
+        return fast(key, (me * math.prod(shape)).astype(_U32))
+    return jax.lax.dynamic_slice_in_dim(plain(key), me * shape[0], shape[0], axis=0)
+
+
 def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.Array:
     """Uniform random bits: ``jax.random.bits(key, shape, dtype)``, bit for bit (see the module docstring).
 
@@ -128,6 +176,18 @@ def bits(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.Arr
     shape = _as_shape(shape)
     dtype = jnp.dtype(jax.dtypes.canonicalize_dtype(jnp.uint64 if dtype is None else dtype))
     width = dtype.itemsize * 8
+    block = _block_of(shape)
+    if block is not None:
+        whole, axis_name = block
+        fast = jnp.issubdtype(dtype, jnp.unsignedinteger) and _fast_form_applies(key, whole, width)
+        return _block_draw(
+            key,
+            shape,
+            whole,
+            axis_name,
+            (lambda k, offset: _fast_bits(k, shape, width, offset)) if fast else None,
+            lambda k: jax.random.bits(k, whole, requested),
+        )
     if not (jnp.issubdtype(dtype, jnp.unsignedinteger) and _fast_form_applies(key, shape, width)):
         return jax.random.bits(key, shape, requested)
     return _cpu_only(lambda k: _fast_bits(k, shape, width), lambda k: jax.random.bits(k, shape, dtype), key)
@@ -156,8 +216,10 @@ def _uniform_from_bits(raw: jax.Array, minval, maxval, dtype: np.dtype) -> jax.A
 
 
 @functools.partial(jax.jit, static_argnums=(3, 4), inline=True)
-def _fast_uniform(key: jax.Array, minval, maxval, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
-    return _uniform_from_bits(_fast_bits(key, shape, jnp.finfo(dtype).bits), minval, maxval, dtype)
+def _fast_uniform(
+    key: jax.Array, minval, maxval, shape: tuple[int, ...], dtype: np.dtype, offset: jax.Array | None = None
+) -> jax.Array:
+    return _uniform_from_bits(_fast_bits(key, shape, jnp.finfo(dtype).bits, offset), minval, maxval, dtype)
 
 
 def uniform(
@@ -173,6 +235,17 @@ def uniform(
     ``dtype=None`` is JAX's default float, ``float32`` (``float64`` under ``jax_enable_x64``).
     """
     shape = _as_shape(shape)
+    block = _block_of(shape)
+    if block is not None:
+        whole, axis_name = block
+        fast_dtype = _fast_float_dtype(key, whole, dtype)
+        plain_dtype = float if dtype is None else dtype
+        plain = lambda k: jax.random.uniform(k, whole, plain_dtype, minval, maxval)  # noqa: E731
+        if fast_dtype is None or np.ndim(minval) or np.ndim(maxval):
+            return _block_draw(key, shape, whole, axis_name, None, plain)
+        lo, hi = (jnp.asarray(v).astype(fast_dtype) for v in (minval, maxval))
+        fast = lambda k, offset: _fast_uniform(k, lo, hi, shape, fast_dtype, offset)  # noqa: E731
+        return _block_draw(key, shape, whole, axis_name, fast, plain)
     fast_dtype = _fast_float_dtype(key, shape, dtype)
     if fast_dtype is None:
         return jax.random.uniform(key, shape, float if dtype is None else dtype, minval, maxval)
@@ -203,11 +276,11 @@ def _kept_apart(x: jax.Array, key_data: jax.Array) -> jax.Array:
 
 
 @functools.partial(jax.jit, static_argnums=(1, 2), inline=True)
-def _fast_normal(key: jax.Array, shape: tuple[int, ...], dtype: np.dtype) -> jax.Array:
+def _fast_normal(key: jax.Array, shape: tuple[int, ...], dtype: np.dtype, offset: jax.Array | None = None) -> jax.Array:
     lo = np.nextafter(np.array(-1.0, dtype), np.array(0.0, dtype), dtype=dtype)
     # Fused into one loop, the hash and erf⁻¹ ran several times slower on XLA:CPU than the two as
     # separate loops (benchmarks/profile_w2.py, normal_jaxnav): the bits get a buffer of their own.
-    raw = _kept_apart(_fast_bits(key, shape, jnp.finfo(dtype).bits), _key_data(key))
+    raw = _kept_apart(_fast_bits(key, shape, jnp.finfo(dtype).bits, offset), _key_data(key))
     u = _uniform_from_bits(raw, jnp.asarray(lo), jnp.asarray(1.0, dtype), dtype)
     return jax.lax.mul(np.array(np.sqrt(2), dtype), jax.lax.erf_inv(u))
 
@@ -219,6 +292,13 @@ def normal(key: jax.Array, shape: int | Sequence[int] = (), dtype=None) -> jax.A
     default float, ``float32`` (``float64`` under ``jax_enable_x64``).
     """
     shape = _as_shape(shape)
+    block = _block_of(shape)
+    if block is not None:
+        whole, axis_name = block
+        fast_dtype = _fast_float_dtype(key, whole, dtype)
+        fast = None if fast_dtype is None else (lambda k, offset: _fast_normal(k, shape, fast_dtype, offset))
+        plain = lambda k: jax.random.normal(k, whole, float if dtype is None else dtype)  # noqa: E731
+        return _block_draw(key, shape, whole, axis_name, fast, plain)
     fast_dtype = _fast_float_dtype(key, shape, dtype)
     if fast_dtype is None:
         return jax.random.normal(key, shape, float if dtype is None else dtype)

@@ -38,9 +38,13 @@ import jax.numpy as jnp
 from jaxnav.core import fastmath
 from jaxnav.core import weights as _w
 from jaxnav.core.integer_cdf import integer_cdf, scale
-from jaxnav.core.resampling import _COUNTS
+from jaxnav.core.particle_filter import PFInfo
+from jaxnav.core.resampling import _COUNTS, ResampleResult
 
-__all__ = ["SCHEMES", "resample", "resample_weights", "take"]
+__all__ = ["PARTICLE_AXIS", "SCHEMES", "finish_step", "resample", "resample_weights", "take"]
+
+PARTICLE_AXIS = "particles"
+"""The mesh axis over which the filters' ``run_sharded`` spread their particles."""
 
 SCHEMES = ("systematic", "stratified")
 """The schemes :func:`resample` spreads over devices."""
@@ -115,3 +119,48 @@ def take(particles: Any, ancestors: jax.Array, axis_name: str) -> Any:
             out,
         )
     return out
+
+
+def finish_step(
+    key: jax.Array,
+    particles: jax.Array,
+    norm: _w.Normalized,
+    axis_name: str,
+    *,
+    threshold: Any = 1.0,
+    scheme: str = "systematic",
+    angle_dims: tuple[int, ...] = (),
+) -> tuple[ResampleResult, PFInfo]:
+    """:func:`jaxnav.core.particle_filter.finish_step` for particles spread over the devices of mesh
+    axis ``axis_name`` (inside ``jax.shard_map``): ``particles [N / D, D_x]`` and ``norm`` (from
+    :func:`jaxnav.core.weights.normalize` with the same ``axis_name``) are this device's block.
+
+    The estimate and the ESS are sums over devices (``psum``), the unsharded values up to the order
+    of the additions; from the same weights and key the ancestors are the unsharded ones exactly
+    (:func:`resample_weights`, the particles fetched by :func:`take`). The returned ancestors are
+    this device's slots' global indices.
+    """
+    probs = jnp.exp(norm.log_weights)
+    estimate = _w.mean_from_probabilities(particles, probs, angle_dims, axis_name)
+    ess = _w.step_ess(probs, norm.degenerate, axis_name)
+    rows = probs.shape[0]
+    n = rows * jax.lax.axis_size(axis_name)
+    k_resample, _ = jax.random.split(key)  # as resampling.conditional_resample splits it
+    uniform = jnp.full_like(norm.log_weights, -jnp.log(jnp.asarray(n, norm.log_weights.dtype)))
+
+    def resampled():
+        ancestors = resample_weights(k_resample, probs, n, axis_name, scheme)
+        return take(particles, ancestors, axis_name), uniform, ancestors
+
+    if isinstance(threshold, (int, float)) and threshold >= 1.0:
+        new, log_weights, ancestors = resampled()
+        decided = jnp.asarray(True)
+    else:
+        decided = (_w.ess_from_probabilities(probs, axis_name) < threshold * n) | (jnp.asarray(threshold) >= 1.0)
+        mine = jax.lax.axis_index(axis_name) * rows + jnp.arange(rows, dtype=jnp.int32)
+        new, log_weights, ancestors = jax.lax.cond(
+            decided, resampled, lambda: (particles, norm.log_weights, mine.astype(jnp.int32))
+        )
+    return ResampleResult(new, log_weights, ancestors, decided), PFInfo(
+        estimate, ess, decided, norm.log_norm, norm.degenerate
+    )

@@ -87,23 +87,33 @@ def sanitize_log_weights(log_weights: jax.Array) -> jax.Array:
     return jnp.where(bad, -jnp.inf, log_weights)
 
 
-def normalize(log_weights: jax.Array) -> Normalized:
+def normalize(log_weights: jax.Array, axis_name: str | None = None) -> Normalized:
     """Normalise log-weights with ``logsumexp``, guarding degenerate sets.
 
     ``w̄_i = exp(ℓ_i − logsumexp(ℓ))``. If every ``ℓ_i`` is ``-inf`` or NaN the
     set is reset to uniform (``-log N`` each) and ``degenerate`` is True; the
     result never contains NaN.
+
+    ``axis_name`` (inside ``jax.shard_map``): ``log_weights`` is this device's block of a vector
+    spread over that mesh axis, normalised as the whole vector: ``m + log Σ_devices Σ exp(ℓ_i − m)``
+    with ``m`` the whole vector's maximum (``pmax``, exact) and the devices' sums added (``psum``),
+    which equals the one-device ``logsumexp`` up to the order of the additions.
     """
     lw = sanitize_log_weights(log_weights)
     # Subtract the max *before* the normaliser: with |ℓ| large (e.g. -1e30 as a
     # "masked" value) ``ℓ − logsumexp(ℓ)`` would lose the O(log N) term to
     # round-off (N equal weights of -1e30 would each get weight 1).
     top = jnp.max(lw)
+    if axis_name is not None:
+        top = jax.lax.pmax(top, axis_name)
     shift = jax.lax.stop_gradient(jnp.where(jnp.isfinite(top), top, 0.0))
     lw = lw - shift
-    log_norm = logsumexp(lw)
+    if axis_name is None:
+        log_norm = logsumexp(lw)
+    else:
+        log_norm = jnp.log(jax.lax.psum(jnp.sum(jnp.exp(lw)), axis_name))
     degenerate = ~jnp.isfinite(log_norm)
-    n = lw.shape[-1]
+    n = lw.shape[-1] * (1 if axis_name is None else jax.lax.axis_size(axis_name))
     uniform = jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype)))
     safe_norm = jnp.where(degenerate, 0.0, log_norm)
     normalized = jnp.where(degenerate, uniform, lw - safe_norm)
@@ -194,25 +204,37 @@ def particle_mean(particles: jax.Array, log_weights: jax.Array, angle_dims: tupl
     return mean_from_probabilities(particles, _weights(log_weights), angle_dims)
 
 
-def mean_from_probabilities(particles: jax.Array, probs: jax.Array, angle_dims: tuple[int, ...] = ()) -> jax.Array:
+def mean_from_probabilities(
+    particles: jax.Array, probs: jax.Array, angle_dims: tuple[int, ...] = (), axis_name: str | None = None
+) -> jax.Array:
     """:func:`particle_mean` given normalised weights ``probs [N]`` (not logs), for filters
-    that already hold them. Angle components: ``atan2(Σ p sin a, Σ p cos a)``."""
-    mean = jnp.einsum("n,nd->d", probs, particles)
+    that already hold them. Angle components: ``atan2(Σ p sin a, Σ p cos a)``.
+
+    ``axis_name`` (inside ``jax.shard_map``): ``particles`` and ``probs`` are this device's block of
+    particles spread over that mesh axis; the sums are taken over every device (``psum``: the same
+    mean up to the order of the additions)."""
+    total = (lambda x: x) if axis_name is None else (lambda x: jax.lax.psum(x, axis_name))
+    mean = total(jnp.einsum("n,nd->d", probs, particles))
     if not angle_dims:
         return mean
     dims = jnp.asarray(angle_dims)
-    return mean.at[dims].set(_circular_mean_from_probabilities(particles[:, dims], probs))
+    if axis_name is None:
+        return mean.at[dims].set(_circular_mean_from_probabilities(particles[:, dims], probs))
+    s, c = fastmath.sincos(particles[:, dims])
+    return mean.at[dims].set(fastmath.atan2(total(jnp.tensordot(probs, s, 1)), total(jnp.tensordot(probs, c, 1))))
 
 
-def ess_from_probabilities(probs: jax.Array) -> jax.Array:
-    """ESS ``1 / Σ p²`` ([A] App. B) of normalised weights ``probs [N]`` (not logs)."""
-    return 1.0 / jnp.sum(probs * probs)
+def ess_from_probabilities(probs: jax.Array, axis_name: str | None = None) -> jax.Array:
+    """ESS ``1 / Σ p²`` ([A] App. B) of normalised weights ``probs [N]`` (not logs); with ``axis_name``
+    (inside ``jax.shard_map``) ``probs`` is this device's block and the sum is over every device (``psum``)."""
+    squares = jnp.sum(probs * probs)
+    return 1.0 / (squares if axis_name is None else jax.lax.psum(squares, axis_name))
 
 
-def step_ess(probs: jax.Array, degenerate: jax.Array) -> jax.Array:
+def step_ess(probs: jax.Array, degenerate: jax.Array, axis_name: str | None = None) -> jax.Array:
     """The ESS a filter step reports: ``1 / Σ p²`` of its normalised weights ``probs [N]``, 0 where the step
-    was ``degenerate`` (see the module docstring)."""
-    return jnp.where(degenerate, jnp.zeros((), probs.dtype), ess_from_probabilities(probs))
+    was ``degenerate`` (see the module docstring); ``axis_name`` as in :func:`ess_from_probabilities`."""
+    return jnp.where(degenerate, jnp.zeros((), probs.dtype), ess_from_probabilities(probs, axis_name))
 
 
 def weighted_cov(

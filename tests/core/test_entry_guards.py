@@ -71,7 +71,7 @@ SEARCHED_NAMES = [m.__name__ for m in SEARCHED] + [
     "jaxnav.experiments.registry",
     "jaxnav.experiments.sweep",
 ]
-KERNEL_PARTS = {"kernel", "move_and_weight", "resample", "slam_step"}
+KERNEL_PARTS = {"kernel", "sharded_kernel", "move_and_weight", "resample", "slam_step"}
 """Pure pieces of a step, for use inside a caller's trace; they take the key a checked ``step`` gave them."""
 
 
@@ -104,6 +104,7 @@ def _calls() -> dict[str, tuple[Any, tuple, dict, bool]]:
     calls = {
         "mcl.init": (mcl.init, (mc, p, POSE), {}, False),
         "mcl.init_uniform": (mcl.init_uniform, (mc, p, bounds), {}, False),
+        "mcl.run_sharded": (lambda key: mcl.run_sharded(key, None, mc, p, None, None, devices=1), (), {}, False),
         "kld_mcl.init": (kld_mcl.init, (kc, p, POSE), {}, False),
         "kld_mcl.init_uniform": (kld_mcl.init_uniform, (kc, p, bounds), {}, False),
         "augmented_mcl.init": (augmented_mcl.init, (ac, ap, POSE), {}, False),

@@ -39,6 +39,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
+import threading
 from collections.abc import Iterator, Sequence
 
 import jax
@@ -123,7 +124,13 @@ def _as_shape(shape: int | Sequence[int]) -> tuple[int, ...]:
 
 # --------------------------------------------------------------------------- blocks of a draw over devices
 
-_BLOCKS: list[tuple[str, int]] = []  # (mesh axis, rows per device) while particle_blocks is open
+_BLOCKS = threading.local()  # .open: [(mesh axis, rows per device)] while particle_blocks is open, per thread
+
+
+def _open_blocks() -> list[tuple[str, int]]:
+    if not hasattr(_BLOCKS, "open"):
+        _BLOCKS.open = []
+    return _BLOCKS.open
 
 
 @contextlib.contextmanager
@@ -140,19 +147,27 @@ def particle_blocks(axis_name: str, rows: int) -> Iterator[None]:
     off) the whole array is drawn with ``jax.random`` and the block sliced from it. A motion model
     that draws with ``jax.random`` directly would draw the same noise on every device: the models
     of :mod:`jaxnav.models.motion` draw with this module.
+
+    The rule is applied while tracing, by shape, in the thread that opened the context: a
+    per-particle draw laid out ``(k, rows)`` is not a block, a draw shared by all particles whose
+    length happens to be ``rows`` is one, and a function jitted outside the context may reuse a
+    trace made there. The built-in motion models draw ``(rows, k)`` and nothing else of length ``rows``.
+    ``uniform``'s bounds must be scalars in a block.
     """
-    _BLOCKS.append((axis_name, int(rows)))
+    blocks = _open_blocks()
+    blocks.append((axis_name, int(rows)))
     try:
         yield
     finally:
-        _BLOCKS.pop()
+        blocks.pop()
 
 
 def _block_of(shape: tuple[int, ...]) -> tuple[tuple[int, ...], str] | None:
     """The whole draw's shape and the mesh axis when a draw of ``shape`` is a device's block."""
-    if not _BLOCKS or not shape or shape[0] != _BLOCKS[-1][1]:
+    blocks = _open_blocks()
+    if not blocks or not shape or shape[0] != blocks[-1][1]:
         return None
-    axis_name, rows = _BLOCKS[-1]
+    axis_name, rows = blocks[-1]
     return (rows * jax.lax.axis_size(axis_name), *shape[1:]), axis_name
 
 
@@ -160,8 +175,8 @@ def _block_draw(key: jax.Array, shape: tuple[int, ...], whole: tuple[int, ...], 
     """This device's block of a draw of ``whole``: ``fast(key, offset)`` over the block's own positions
     when the fast form applies to ``whole``, else ``plain(key)`` of ``whole``, sliced."""
     me = jax.lax.axis_index(axis_name)
-    if fast is not None:
-        return fast(key, (me * math.prod(shape)).astype(_U32))
+    if fast is not None:  # the whole draw has fewer than 2³² elements: the offset fits in uint32
+        return fast(key, me.astype(_U32) * _U32(math.prod(shape)))
     return jax.lax.dynamic_slice_in_dim(plain(key), me * shape[0], shape[0], axis=0)
 
 
@@ -238,10 +253,12 @@ def uniform(
     block = _block_of(shape)
     if block is not None:
         whole, axis_name = block
+        if np.ndim(minval) or np.ndim(maxval):
+            raise ValueError("uniform draws in particle_blocks take scalar minval and maxval")
         fast_dtype = _fast_float_dtype(key, whole, dtype)
         plain_dtype = float if dtype is None else dtype
         plain = lambda k: jax.random.uniform(k, whole, plain_dtype, minval, maxval)  # noqa: E731
-        if fast_dtype is None or np.ndim(minval) or np.ndim(maxval):
+        if fast_dtype is None:
             return _block_draw(key, shape, whole, axis_name, None, plain)
         lo, hi = (jnp.asarray(v).astype(fast_dtype) for v in (minval, maxval))
         fast = lambda k, offset: _fast_uniform(k, lo, hi, shape, fast_dtype, offset)  # noqa: E731

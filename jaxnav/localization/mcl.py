@@ -350,17 +350,19 @@ def sharded_kernel(
     params: MCLParams,
     control: jax.Array,
     obs: Any,
-    axis_name: str = sharded.PARTICLE_AXIS,
 ) -> tuple[MCLState, MCLInfo]:
-    """:func:`kernel` on this device's block of particles, inside ``jax.shard_map`` over mesh axis
-    ``axis_name`` (``state`` holds ``N / D`` particles; ``key``, ``params``, ``control`` and ``obs``
-    are the same on every device).
+    """:func:`kernel` on this device's block of particles, inside ``jax.shard_map`` over the mesh axis
+    :data:`jaxnav.core.sharded.PARTICLE_AXIS` (``state`` holds ``N / D`` particles; ``key``,
+    ``params``, ``control`` and ``obs`` are the same on every device).
 
     Each particle moves with the noise it gets in the unsharded step (the draws are blocks of the
     whole draw, :func:`jaxnav.core.rng.particle_blocks`); the normaliser, the ESS and the
     resampling are those of the whole set (:func:`jaxnav.core.weights.normalize`,
     :func:`jaxnav.core.sharded.finish_step`, sums over devices: see :func:`run_sharded`).
     """
+    if config.gaussian_refresh:
+        raise ValueError("config.gaussian_refresh is not available with the particles spread over devices")
+    axis_name = sharded.PARTICLE_AXIS
     k_move, k_resample = jax.random.split(key)
     model = get_motion_model(config.motion_model)
     with rng.particle_blocks(axis_name, state.particles.shape[0]):
@@ -392,10 +394,11 @@ def run_sharded(
     """:func:`run` with the particles spread over ``devices`` (default: every local device).
 
     The ``N`` particles are split into ``D`` blocks of ``N / D`` consecutive particles, one per
-    device, and each step runs :func:`sharded_kernel` on every block inside ``jax.shard_map``:
-    the devices exchange only scalars (the largest log-weight, row sums of the weights), the
-    integer totals of the resampling and the particles that resampling moves between them
-    (:mod:`jaxnav.core.sharded`).
+    device, and each step runs :func:`sharded_kernel` on every block inside ``jax.shard_map``.
+    Per step the devices exchange a few scalars (the largest log-weight, the sums of the weights
+    and of their squares, the estimate's sums), the resampling's integer totals and its histogram
+    of ``N`` offspring counts (reduce-scattered), and, on a resampling step, every block of
+    particles passes once round the ring of devices (:mod:`jaxnav.core.sharded`).
 
     **The same numbers.** Each particle moves with the noise it gets in :func:`run` (the draws are
     blocks of the whole draw), and, from the same weights and key, the resampling draws
@@ -414,7 +417,11 @@ def run_sharded(
 
     Returns:
         ``(final_state, trace)`` as :func:`run`; the final state's arrays stay spread over the devices.
+
+    The memory guard of :func:`run` (a run refused before it allocates more than a device holds)
+    is not applied: each device holds ``N / D`` particles and the trace is ``[T]`` scalars and poses.
     """
+    inputs = run.check(key, state, config, params, controls, observations)  # type: ignore[attr-defined]
     chosen = batch.run_devices(jax.local_devices() if devices is None else devices)
     if any(d.process_index != jax.process_index() for d in chosen):
         raise ValueError("run_sharded spreads particles over this process's devices; devices must be local")
@@ -428,7 +435,6 @@ def run_sharded(
         )
     if config.gaussian_refresh:
         raise ValueError("config.gaussian_refresh is not available with the particles spread over devices")
-    inputs = run.check(key, state, config, params, controls, observations)  # type: ignore[attr-defined]
     return _sharded_program(config, chosen)(key, state, params, *inputs)
 
 

@@ -15,7 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.sharding import Mesh
+from jax.sharding import PartitionSpec as P
 
+from jaxnav.core import sharded
 from jaxnav.demo import demo_setting
 from jaxnav.localization import mcl
 from jaxnav.sim import landmark_world, trajectories
@@ -107,6 +110,8 @@ def test_whole_rows_per_device_carry_the_unsharded_particles(child):
     whole_rows = [r for r in child["runs"] if r["case"][0] % 4096 == 0]
     assert len(whole_rows) == 7
     for r in whole_rows:
+        # bit for bit as measured with this XLA and these flags (the module docstring): a failure here
+        # on another XLA is a weight rounded differently, to be read with the tolerances below
         assert r["particles"] and r["log_weights"] and r["resampled"], r
         assert r["spread_over"] == (r["case"][4] or 4), r
         # sums over devices in another order: the unsharded values up to float rounding
@@ -119,7 +124,7 @@ def test_smaller_blocks_agree_to_the_filter_s_accuracy(child):
     (r,) = [r for r in child["runs"] if r["case"][0] == 1000]
     # 250 particles per device: a weight rounded differently can move an ancestor, and the clouds
     # then differ by Monte Carlo noise, well below the filter's error (tens of mm)
-    assert r["log_weights"] and r["estimate"] < 0.05, r
+    assert r["estimate"] < 0.05, r
 
 
 def test_particle_blocks_are_blocks_of_the_whole_draw(child):
@@ -181,3 +186,32 @@ def test_bad_input_is_refused_as_run_refuses_it():
         mcl.run_sharded(jax.random.PRNGKey(5), state, config, params, controls[:, :2], obs, devices=1)
     with pytest.raises(ValueError, match="devices"):
         mcl.run_sharded(jax.random.PRNGKey(5), state, config, params, controls, obs, devices=0)
+
+
+def _one_step_on_one_device(config, params):
+    mesh = Mesh(np.asarray(jax.local_devices()[:1]), (sharded.PARTICLE_AXIS,))
+    blocks = mcl.MCLState(P(sharded.PARTICLE_AXIS), P(sharded.PARTICLE_AXIS))
+    step = lambda key, state, control, obs: mcl.sharded_kernel(key, state, config, params, control, obs)  # noqa: E731
+    return jax.jit(
+        jax.shard_map(step, mesh=mesh, in_specs=(P(), blocks, P(), P()), out_specs=(blocks, P()), check_vma=False)
+    )
+
+
+def test_the_sharded_kernel_keeps_its_state_on_inputs_outside_the_domain():
+    """Inside a caller's trace the host checks cannot see values: a negative time step leaves the
+    particles as they were and is flagged, as :func:`mcl.kernel` does."""
+    state, config, params, controls, obs = _setting()
+    step = _one_step_on_one_device(config, params)
+    first = jax.tree_util.tree_map(lambda x: x[0], obs)
+    moved, info = step(jax.random.PRNGKey(3), state, controls[0], first)
+    kept, flagged = step(jax.random.PRNGKey(3), state, controls[0].at[2].set(-0.1), first)
+    assert not bool(info.invalid_inputs) and bool(flagged.invalid_inputs)
+    assert not np.array_equal(np.asarray(moved.particles), np.asarray(state.particles))
+    np.testing.assert_array_equal(np.asarray(kept.particles), np.asarray(state.particles))
+
+
+def test_the_sharded_kernel_refuses_a_gaussian_refresh():
+    state, config, params, controls, obs = _setting(gaussian_refresh=True)
+    first = jax.tree_util.tree_map(lambda x: x[0], obs)
+    with pytest.raises(ValueError, match="gaussian_refresh"):
+        _one_step_on_one_device(config, params)(jax.random.PRNGKey(3), state, controls[0], first)

@@ -142,7 +142,8 @@ def finish_step(
     """
     probs = jnp.exp(norm.log_weights)
     estimate = _w.mean_from_probabilities(particles, probs, angle_dims, axis_name)
-    ess = _w.step_ess(probs, norm.degenerate, axis_name)
+    ess_value = _w.ess_from_probabilities(probs, axis_name)  # one sum over devices: reported and decided on
+    ess = jnp.where(norm.degenerate, jnp.zeros((), probs.dtype), ess_value)  # weights.step_ess
     rows = probs.shape[0]
     n = rows * jax.lax.axis_size(axis_name)
     k_resample, _ = jax.random.split(key)  # as resampling.conditional_resample splits it
@@ -156,11 +157,9 @@ def finish_step(
         new, log_weights, ancestors = resampled()
         decided = jnp.asarray(True)
     else:
-        decided = (_w.ess_from_probabilities(probs, axis_name) < threshold * n) | (jnp.asarray(threshold) >= 1.0)
+        decided = (ess_value < threshold * n) | (jnp.asarray(threshold) >= 1.0)
         mine = jax.lax.axis_index(axis_name) * rows + jnp.arange(rows, dtype=jnp.int32)
-        new, log_weights, ancestors = jax.lax.cond(
-            decided, resampled, lambda: (particles, norm.log_weights, mine.astype(jnp.int32))
-        )
+        new, log_weights, ancestors = jax.lax.cond(decided, resampled, lambda: (particles, norm.log_weights, mine))
     return ResampleResult(new, log_weights, ancestors, decided), PFInfo(
         estimate, ess, decided, norm.log_norm, norm.degenerate
     )

@@ -190,10 +190,11 @@ def circular_mean(angles: jax.Array, log_weights: jax.Array | None = None) -> ja
     return _circular_mean_from_probabilities(angles, w)
 
 
-def _circular_mean_from_probabilities(angles: jax.Array, probs: jax.Array) -> jax.Array:
-    """``atan2(Σ p sin a, Σ p cos a)`` over the leading axis of ``angles [N, ...]``."""
+def _circular_mean_from_probabilities(angles: jax.Array, probs: jax.Array, total=lambda x: x) -> jax.Array:
+    """``atan2(Σ p sin a, Σ p cos a)`` over the leading axis of ``angles [N, ...]``; ``total`` completes
+    each sum (a ``psum`` over devices when the particles are spread)."""
     s, c = fastmath.sincos(angles)
-    return fastmath.atan2(jnp.tensordot(probs, s, 1), jnp.tensordot(probs, c, 1))
+    return fastmath.atan2(total(jnp.tensordot(probs, s, 1)), total(jnp.tensordot(probs, c, 1)))
 
 
 def particle_mean(particles: jax.Array, log_weights: jax.Array, angle_dims: tuple[int, ...] = ()) -> jax.Array:
@@ -218,10 +219,7 @@ def mean_from_probabilities(
     if not angle_dims:
         return mean
     dims = jnp.asarray(angle_dims)
-    if axis_name is None:
-        return mean.at[dims].set(_circular_mean_from_probabilities(particles[:, dims], probs))
-    s, c = fastmath.sincos(particles[:, dims])
-    return mean.at[dims].set(fastmath.atan2(total(jnp.tensordot(probs, s, 1)), total(jnp.tensordot(probs, c, 1))))
+    return mean.at[dims].set(_circular_mean_from_probabilities(particles[:, dims], probs, total))
 
 
 def ess_from_probabilities(probs: jax.Array, axis_name: str | None = None) -> jax.Array:

@@ -44,6 +44,7 @@ every jaxnav resampler.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
@@ -271,6 +272,7 @@ def move_and_weight(
     control: jax.Array,
     obs: Any,
     sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR,
+    axis_name: str | None = None,
 ) -> Weighted:
     """Move ``particles [N, 3]`` by a draw of ``motion_model`` and weight them by ``sensor``'s
     likelihood of ``obs``.
@@ -279,14 +281,20 @@ def move_and_weight(
     masked particles keep zero weight). ``params`` needs the field ``motion`` and those the sensor
     reads (range-bearing: ``sensor`` and ``landmarks``). Shared by MCL and its augmented
     and KLD-sampling variants; traceable, not jitted on its own.
+
+    ``axis_name`` (inside ``jax.shard_map``): ``particles`` are this device's block of particles spread
+    over that mesh axis; the motion draws are blocks of the whole draw
+    (:func:`jaxnav.core.rng.particle_blocks`) and the weights are normalised over every device.
     """
     model = get_motion_model(motion_model)
-    moved = materialize(model.sample(key, particles, control, params.motion))
+    blocks = contextlib.nullcontext() if axis_name is None else rng.particle_blocks(axis_name, particles.shape[0])
+    with blocks:
+        moved = materialize(model.sample(key, particles, control, params.motion))
     moved, loglik = keep_finite(particles, moved, sensor.log_likelihood(moved, obs, params))
     num_ignored = sensor.num_ignored(obs, params)
     # log_weights is normalised, so the normaliser of the product is the
     # log marginal-likelihood increment log Σ w̄_{t−1} p(z_t | x_t).
-    norm = weights.normalize(log_weights + loglik)
+    norm = weights.normalize(log_weights + loglik, axis_name)
     return Weighted(moved, norm, jnp.exp(norm.log_weights), num_ignored)
 
 
@@ -364,22 +372,19 @@ def sharded_kernel(
         raise ValueError("config.gaussian_refresh is not available with the particles spread over devices")
     axis_name = sharded.PARTICLE_AXIS
     k_move, k_resample = jax.random.split(key)
-    model = get_motion_model(config.motion_model)
-    with rng.particle_blocks(axis_name, state.particles.shape[0]):
-        moved = materialize(model.sample(k_move, state.particles, control, params.motion))
-    moved, loglik = keep_finite(state.particles, moved, config.sensor.log_likelihood(moved, obs, params))
-    norm = weights.normalize(state.log_weights + loglik, axis_name)
+    w = move_and_weight(
+        k_move, state.particles, state.log_weights, config.motion_model, params, control, obs, config.sensor, axis_name
+    )
     res, base = sharded.finish_step(
         k_resample,
-        moved,
-        norm,
+        w.particles,
+        w.norm,
         axis_name,
         threshold=config.ess_threshold,
         scheme=config.resampling,
         angle_dims=_ANGLE_DIMS,
     )
-    num_ignored = config.sensor.num_ignored(obs, params)
-    return MCLState(res.particles, res.log_weights), extend_info(MCLInfo, base, num_ignored=num_ignored)
+    return MCLState(res.particles, res.log_weights), extend_info(MCLInfo, base, num_ignored=w.num_ignored)
 
 
 def run_sharded(

@@ -274,6 +274,8 @@ def _robots(text: str) -> list[int]:
 
 def _cmd_mrclam(args: argparse.Namespace) -> int:
     robots = _robots(args.robots)
+    if args.calibrate is not None:
+        return _mrclam_calibration(args, robots)
     algorithms = _names("--algorithms", args.algorithms, MRCLAM_ALGORITHMS, "algorithm")
     if args.out:
         _check_out_files("--out", args.out, [f"{args.out}-robot{r}.png" for r in robots])
@@ -302,6 +304,57 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
         if args.out:
             _write_plot(lambda path: xp.plot_robot(seq, results, path), f"{args.out}-robot{robot}.png")
     print(xp.format_table(rows))
+    return 0
+
+
+MRCLAM_CALIBRATION_SECONDS = 300.0
+"""The segment of robot 1's log that ``jaxnav mrclam --calibrate`` learns the noise on (s)."""
+
+
+def _mrclam_calibration(args: argparse.Namespace, robots: list[int]) -> int:
+    """``jaxnav mrclam --calibrate METHOD``: learn the noise on robot 1's first 300 s, then compare."""
+    known_map = ("ekf", "ukf", "mcl")
+    chosen = args.algorithms if args.algorithms != ",".join(MRCLAM_ALGORITHMS) else ",".join(known_map)
+    algorithms = _names("--algorithms", chosen, known_map, "known-map filter (with --calibrate)")
+    from jaxnav.experiments import mrclam as xp
+    from jaxnav.experiments.mrclam import calibration as cal
+    from jaxnav.io import mrclam as data
+
+    folder = data.data_dir(args.data)
+    print(f"jaxnav {__version__}: UTIAS MRCLAM dataset 7 from {folder}; noise learned by {args.calibrate.upper()}")
+    print("Leung et al., IJRR 30(8), 2011 (please cite the dataset)")
+    settings = xp.MRCLAMSettings()
+    seq = data.to_filter_steps(
+        data.load_robot(1, args.data),
+        dt=settings.dt,
+        duration=MRCLAM_CALIBRATION_SECONDS,
+        max_obs=settings.max_obs,
+        keep_outliers=True,
+    )
+    _compiling(f"robot 1, first {MRCLAM_CALIBRATION_SECONDS:g} s: fitting the motion and sensor noise…")
+    fit = cal.fit_noise(seq, settings, args.calibrate, args.calibration_steps, args.seed, progress=True)
+    losses = fit.result.losses
+    print(
+        f"fitted in {fit.seconds:.0f} s ({losses.size} steps; mean log-likelihood per step "
+        f"{-losses[0]:.3f} -> {-losses[-1]:.3f})"
+    )
+    for name, hand, learned in (
+        ("alphas", settings.alphas, fit.settings.alphas),
+        ("pose_sd (m, m, rad)", settings.pose_sd, fit.settings.pose_sd),
+        ("sensor_sd (m, rad)", settings.sensor_sd, fit.settings.sensor_sd),
+    ):
+        print(f"  {name}: {', '.join(f'{v:.4g}' for v in hand)} -> {', '.join(f'{v:.4g}' for v in learned)}")
+    span = "the whole log" if args.duration is None else f"{args.duration:g} s"
+    _compiling(f"robots {robots}, {span}: running {', '.join(algorithms)} with both settings…")
+    rows = cal.compare(
+        {"hand-chosen": settings, "learned": fit.settings},
+        robots,
+        algorithms,
+        duration=args.duration,
+        seed=args.seed,
+        root=args.data,
+    )
+    print(cal.format_comparison(rows))
     return 0
 
 
@@ -631,6 +684,10 @@ and the time taken, and draws a PNG per robot (needs matplotlib).
                 "robot 2: EKF, EKF-SLAM and FastSLAM 2.0 over the first 2 minutes; writes jaxnav-mrclam-robot2.png",
                 "jaxnav mrclam --robots 2 --algorithms ekf,ekf_slam,fastslam2 --duration 120",
             ),
+            (
+                "noise learned on robot 1's first 300 s by MCL's likelihood; EKF, UKF, MCL on robots 1-3 with both",
+                "jaxnav mrclam --calibrate mcl",
+            ),
         ),
     )
     mr.add_argument("--robots", default="1,2,3", help="comma-separated robots (default 1,2,3)")
@@ -648,6 +705,20 @@ and the time taken, and draws a PNG per robot (needs matplotlib).
     mr.add_argument("--seed", type=_seed, default=0, help="seed of the particle filters (default 0)")
     mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
+    mr.add_argument(
+        "--calibrate",
+        choices=("mcl", "ekf"),
+        default=None,
+        help="learn the motion and sensor noise on robot 1's first 300 s by MCL's likelihood (score gradient, "
+        "Adam) or the ungated EKF's (L-BFGS), then run the known-map filters (--algorithms among ekf,ukf,mcl; "
+        "default all three) on --robots with the hand-chosen and the learned noise; draws no PNG",
+    )
+    mr.add_argument(
+        "--calibration-steps",
+        type=_positive_int,
+        default=None,
+        help="optimiser steps of --calibrate (default 60 for mcl, 20 for ekf)",
+    )
     mr.set_defaults(func=_cmd_mrclam)
 
 

@@ -44,6 +44,7 @@ EXAMPLE_PAGES = (
     "docs/getting-started.md",
     "docs/interface.md",
     "docs/guides/scaling-out.md",
+    "docs/guides/calibration.md",
 )
 
 # Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:

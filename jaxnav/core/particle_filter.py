@@ -123,6 +123,8 @@ def finish_step(
     scheme: str = "systematic",
     refresh: bool = False,
     angle_dims: tuple[int, ...] = (),
+    gradient: str = "score",
+    soft_mixing: float = 0.5,
 ) -> tuple[resampling.ResampleResult, PFInfo]:
     """Estimate, ESS and conditional resampling of ``particles [N, D]`` with the normalised weights ``norm``.
 
@@ -135,6 +137,7 @@ def finish_step(
         scheme: a name in :data:`jaxnav.core.resampling.SCHEMES`.
         refresh: redraw the resampled set from its fitted Gaussian ([A] §4.3.3).
         angle_dims: dimensions that are angles (circular mean, wrapped refresh).
+        gradient, soft_mixing: how derivatives pass the resampling (:mod:`jaxnav.core.gradients`).
 
     Returns:
         ``(ResampleResult, PFInfo)``: the particles and log-weights to carry on (with the
@@ -152,5 +155,7 @@ def finish_step(
         refresh=refresh,
         angle_dims=angle_dims,
         normalized=True,
+        gradient=gradient,
+        soft_mixing=soft_mixing,
     )
     return res, PFInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate)

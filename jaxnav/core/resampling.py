@@ -49,6 +49,7 @@ import jax.numpy as jnp
 
 from jaxnav.core import fastmath, rng, u64
 from jaxnav.core import weights as _w
+from jaxnav.core.gradients import check_gradient, selection_score, soft_carried_log_weights, soft_proposal
 from jaxnav.core.integer_cdf import (
     MAX_SAMPLES,
     TOTAL_BITS,
@@ -374,6 +375,8 @@ def conditional_resample(
     refresh: bool | str = False,
     angle_dims: tuple[int, ...] = (),
     normalized: bool = False,
+    gradient: str = "score",
+    soft_mixing: float = 0.5,
 ) -> ResampleResult:
     """Resample when ``ESS < threshold · N``; otherwise pass the particles through.
 
@@ -393,6 +396,12 @@ def conditional_resample(
         normalized: promise that ``log_weights`` are already normalised (as
             :func:`jaxnav.core.weights.normalize` returns them), which saves
             normalising again inside a filter step.
+        gradient: how derivatives pass the resampling, a name in
+            :data:`~jaxnav.core.gradients.GRADIENT_ESTIMATORS` (:mod:`jaxnav.core.gradients`):
+            ``"score"`` (default; stop-gradient resampling, the forward pass unchanged),
+            ``"soft"`` (ancestors drawn from ``α w̄ + (1 − α)/N``, importance weights carried)
+            or ``"naive"`` (uniform weights after resampling, no derivative).
+        soft_mixing: ``α`` in ``[0, 1]`` of ``"soft"``.
 
     The decision is a ``lax.cond``; under ``vmap`` over runs it becomes a
     per-run select, so every run decides for itself. A Python threshold
@@ -400,6 +409,9 @@ def conditional_resample(
     """
     if not (isinstance(refresh, bool) or refresh in REFRESHES):
         raise ValueError(f"refresh must be True, False or one of {REFRESHES}, got {refresh!r}")
+    check_gradient(gradient, soft_mixing)
+    if gradient == "soft" and refresh:  # a refresh redraws the set as if its weights were uniform
+        raise ValueError("gradient 'soft' cannot be combined with a refresh")
     resampler = get_resampler(scheme) if isinstance(scheme, str) else scheme
     lw = log_weights if normalized else _w.normalize(log_weights).log_weights
     n = lw.shape[0]
@@ -409,13 +421,24 @@ def conditional_resample(
     uniform = jnp.full_like(lw, -jnp.log(jnp.asarray(n, lw.dtype)))
 
     def _resample():
-        idx = scheme_p(k_res, lw, p, n) if scheme_p is not None else resampler(k_res, lw, n)
+        if gradient == "soft":
+            log_q = soft_proposal(lw, soft_mixing)
+            log_draw, p_draw = jax.lax.stop_gradient(log_q), jax.lax.stop_gradient(jnp.exp(log_q))
+        else:
+            log_draw, p_draw = lw, p
+        idx = scheme_p(k_res, log_draw, p_draw, n) if scheme_p is not None else resampler(k_res, log_draw, n)
         new = jax.tree_util.tree_map(lambda x: jnp.take(x, idx, axis=0, mode="clip"), particles)
         if refresh == "kernel":
             new = kernel_refresh(k_ref, new, None, angle_dims)
         elif refresh:
             new = gaussian_refresh(k_ref, new, None, angle_dims)
-        return new, uniform, idx
+        if gradient == "score":
+            carried = uniform + selection_score(jnp.take(lw, idx, axis=0, mode="clip"))
+        elif gradient == "soft":
+            carried = soft_carried_log_weights(lw, log_q, idx)
+        else:
+            carried = uniform
+        return new, carried, idx
 
     if isinstance(threshold, (int, float)) and threshold >= 1.0:
         new_particles, new_lw, ancestors = _resample()

@@ -30,6 +30,7 @@ resampling are supported; the multinomial and residual schemes are not.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -130,6 +131,7 @@ def finish_step(
     threshold: Any = 1.0,
     scheme: str = "systematic",
     angle_dims: tuple[int, ...] = (),
+    gradient: str = "score",
 ) -> tuple[ResampleResult, PFInfo]:
     """:func:`jaxnav.core.particle_filter.finish_step` for particles spread over the devices of mesh
     axis ``axis_name`` (inside ``jax.shard_map``): ``particles [N / D, D_x]`` and ``norm`` (from
@@ -138,8 +140,13 @@ def finish_step(
     The estimate and the ESS are sums over devices (``psum``), the unsharded values up to the order
     of the additions; from the same weights and key the ancestors are the unsharded ones exactly
     (:func:`resample_weights`, the particles fetched by :func:`take`). The returned ancestors are
-    this device's slots' global indices.
+    this device's slots' global indices. ``gradient``: ``"score"`` (stop-gradient resampling,
+    :func:`jaxnav.core.gradients.selection_score`; its derivative reaches each ancestor's device in
+    the backward pass, reverse mode only) or ``"naive"``, with the same forward pass; ``"soft"``
+    changes the draw and is not available here.
     """
+    if gradient not in ("score", "naive"):
+        raise ValueError(f"gradient {gradient!r} is not available with the particles spread over devices")
     probs = jnp.exp(norm.log_weights)
     estimate = _w.mean_from_probabilities(particles, probs, angle_dims, axis_name)
     ess_value = _w.ess_from_probabilities(probs, axis_name)  # one sum over devices: reported and decided on
@@ -151,7 +158,10 @@ def finish_step(
 
     def resampled():
         ancestors = resample_weights(k_resample, probs, n, axis_name, scheme)
-        return take(particles, ancestors, axis_name), uniform, ancestors
+        new = take(particles, ancestors, axis_name)
+        if gradient == "naive":
+            return new, uniform, ancestors
+        return new, uniform + _selection_score(norm.log_weights, ancestors, axis_name), ancestors
 
     if isinstance(threshold, (int, float)) and threshold >= 1.0:
         new, log_weights, ancestors = resampled()
@@ -163,3 +173,25 @@ def finish_step(
     return ResampleResult(new, log_weights, ancestors, decided), PFInfo(
         estimate, ess, decided, norm.log_norm, norm.degenerate
     )
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2,))
+def _selection_score(log_weights: jax.Array, ancestors: jax.Array, axis_name: str) -> jax.Array:
+    """:func:`jaxnav.core.gradients.selection_score` of this device's slots, for log-weights spread over
+    ``axis_name``: zeros in value, written with a custom VJP so that the forward pass is the one of
+    ``"naive"`` (no ancestor's log-weight travels; another program could round the sums otherwise)
+    and the backward pass sends each slot's cotangent to the device that holds its ancestor."""
+    return jnp.zeros(ancestors.shape, log_weights.dtype)
+
+
+def _selection_score_fwd(log_weights, ancestors, axis_name):
+    return _selection_score(log_weights, ancestors, axis_name), (ancestors, log_weights.shape[0])
+
+
+def _selection_score_bwd(axis_name, residuals, cotangent):
+    ancestors, rows = residuals
+    whole = jnp.zeros((rows * jax.lax.axis_size(axis_name),), cotangent.dtype).at[ancestors].add(cotangent)
+    return jax.lax.psum_scatter(whole, axis_name, scatter_dimension=0, tiled=True), None
+
+
+_selection_score.defvjp(_selection_score_fwd, _selection_score_bwd)

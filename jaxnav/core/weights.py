@@ -103,10 +103,10 @@ def normalize(log_weights: jax.Array, axis_name: str | None = None) -> Normalize
     # Subtract the max *before* the normaliser: with |ℓ| large (e.g. -1e30 as a
     # "masked" value) ``ℓ − logsumexp(ℓ)`` would lose the O(log N) term to
     # round-off (N equal weights of -1e30 would each get weight 1).
-    top = jnp.max(lw)
+    top = jnp.max(jax.lax.stop_gradient(lw))  # a constant shift: no derivative (pmax has none)
     if axis_name is not None:
         top = jax.lax.pmax(top, axis_name)
-    shift = jax.lax.stop_gradient(jnp.where(jnp.isfinite(top), top, 0.0))
+    shift = jnp.where(jnp.isfinite(top), top, 0.0)
     lw = lw - shift
     if axis_name is None:
         log_norm = logsumexp(lw)

@@ -66,8 +66,10 @@ Interface (as :mod:`jaxnav.localization.mcl`)::
     state, info = augmented_mcl.step(key, state, config, params, control, observation)
     final_state, trace = augmented_mcl.run(key, state, config, params, controls, observations)
 
-Gradients do not flow through the resampling indices or the injection mask
-(both discrete), the stop-gradient policy of every jaxnav resampler.
+Gradients: the weights after resampling are uniform constants (the ``"naive"`` estimator of
+:mod:`jaxnav.core.gradients`: no derivative passes the resampling or the injection mask), and the
+injected poses carry no weight, so ``info.log_likelihood`` is a likelihood increment only at a step
+without injection; fit parameters with MCL (:mod:`jaxnav.calibration`).
 """
 
 from __future__ import annotations

@@ -131,7 +131,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import memory, resampling, rng, weights
+from jaxnav.core import gradients, memory, resampling, rng, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
@@ -204,6 +204,10 @@ class IRMCLConfig:
         restart_when_lost: repeat that re-draw after the start at a unique-ID
             detection that no particle can explain (not in [W]; module
             docstring, "Heading").
+        gradient: how ``jax.grad`` of the log-likelihood passes resampling, a name in
+            :data:`jaxnav.core.gradients.GRADIENT_ESTIMATORS` (default ``"score"``, the forward pass
+            unchanged; :mod:`jaxnav.core.gradients`).
+        soft_mixing: ``α`` in ``[0, 1]`` of ``"soft"`` resampling; unused by the other estimators.
     """
 
     # the fields that size the state, named when it is too large (jaxnav.core.memory)
@@ -214,6 +218,8 @@ class IRMCLConfig:
     ess_threshold: float = 1.0
     redraw_factor: int = 16
     restart_when_lost: bool = True
+    gradient: str = "score"
+    soft_mixing: float = 0.5
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
@@ -221,6 +227,7 @@ class IRMCLConfig:
         check_choice("motion_model", self.motion_model, MODELS)
         check_choice("resampling", self.resampling, resampling.SCHEMES)
         check_fraction("ess_threshold", self.ess_threshold)
+        gradients.check_gradient(self.gradient, self.soft_mixing)
 
 
 class IRMCLParams(NamedTuple):
@@ -546,7 +553,14 @@ def kernel(
     # eq. 5.4 and Alg. 3 lines 16–20 (resampling only at a step that weighted the particles)
     threshold = jnp.where(jnp.any(apply), jnp.asarray(config.ess_threshold, jnp.float32), 0.0)
     res, base = finish_step(
-        k_resample, particles, norm, threshold=threshold, scheme=config.resampling, angle_dims=_ANGLE_DIMS
+        k_resample,
+        particles,
+        norm,
+        threshold=threshold,
+        scheme=config.resampling,
+        angle_dims=_ANGLE_DIMS,
+        gradient=config.gradient,
+        soft_mixing=config.soft_mixing,
     )
     num_used = jnp.sum(ok, dtype=jnp.int32)
     info = extend_info(

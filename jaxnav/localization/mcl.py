@@ -37,9 +37,13 @@ Augmented MCL and KLD-MCL take both the same way.
 Robustness: a masked observation slot, or one whose landmark id is not in the
 map, is ignored (and counted in ``info.num_ignored``); a step in which every
 particle has zero likelihood resets the weights to uniform and sets
-``info.degenerate`` instead of producing NaN. Gradients do not flow through
-the resampling indices (they are integers): the stop-gradient policy of
-every jaxnav resampler.
+``info.degenerate`` instead of producing NaN.
+
+**Gradients.** ``jax.grad`` of ``trace.log_likelihood.sum()`` (the log marginal-likelihood
+estimate ``log Ẑ``) with respect to ``params`` passes the moves pathwise and the resampling
+by ``MCLConfig.gradient``: by default stop-gradient resampling (:mod:`jaxnav.core.gradients`),
+whose ``∇Ẑ`` is unbiased for ``∇Z`` with multinomial resampling (and passed the same test with
+systematic); :mod:`jaxnav.calibration` fits ``params`` with it.
 """
 
 from __future__ import annotations
@@ -53,7 +57,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import batch, memory, resampling, rng, sharded, weights
+from jaxnav.core import batch, gradients, memory, resampling, rng, sharded, weights
 from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite, materialize
 from jaxnav.core.validation import (
@@ -111,6 +115,12 @@ class MCLConfig:
             ([A] §4.3.3); meant for static targets, off for a moving robot.
         sensor: the :class:`~jaxnav.models.sensor.ParticleSensor` that weights the particles
             (default: range-bearing observations of a known landmark map).
+        gradient: how ``jax.grad`` of the log-likelihood passes resampling, a name in
+            :data:`jaxnav.core.gradients.GRADIENT_ESTIMATORS`: ``"score"`` (default; the forward
+            pass unchanged; ``∇Ẑ`` unbiased for ``∇Z`` with multinomial resampling), ``"soft"`` or ``"naive"``
+            (:mod:`jaxnav.core.gradients` gives each one's bias and variance).
+        soft_mixing: ``α`` in ``[0, 1]`` of ``"soft"`` resampling (ancestors drawn from
+            ``α w̄ + (1 − α)/N``); unused by the other estimators.
     """
 
     # the fields that size the state, named when it is too large (jaxnav.core.memory)
@@ -121,6 +131,8 @@ class MCLConfig:
     ess_threshold: float = 1.0
     gaussian_refresh: bool = False
     sensor: ParticleSensor = lm.RANGE_BEARING_SENSOR
+    gradient: str = "score"
+    soft_mixing: float = 0.5
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
@@ -128,6 +140,9 @@ class MCLConfig:
         check_motion_model("motion_model", self.motion_model)
         check_choice("resampling", self.resampling, resampling.SCHEMES)
         check_fraction("ess_threshold", self.ess_threshold)
+        gradients.check_gradient(self.gradient, self.soft_mixing)
+        if self.gradient == "soft" and self.gaussian_refresh:  # the refresh would ignore the carried weights
+            raise ValueError("gradient 'soft' cannot be combined with gaussian_refresh")
 
 
 MCLParams = lm.LandmarkMapParams
@@ -320,6 +335,8 @@ def kernel(
         scheme=config.resampling,
         refresh=config.gaussian_refresh,
         angle_dims=_ANGLE_DIMS,
+        gradient=config.gradient,
+        soft_mixing=config.soft_mixing,
     )
     return MCLState(res.particles, res.log_weights), extend_info(MCLInfo, base, num_ignored=w.num_ignored)
 
@@ -383,6 +400,7 @@ def sharded_kernel(
         threshold=config.ess_threshold,
         scheme=config.resampling,
         angle_dims=_ANGLE_DIMS,
+        gradient=config.gradient,
     )
     return MCLState(res.particles, res.log_weights), extend_info(MCLInfo, base, num_ignored=w.num_ignored)
 
@@ -414,7 +432,8 @@ def run_sharded(
     whole rows of 1024 particles per device carried exactly :func:`run`'s particles).
 
     The other arguments are :func:`run`'s; ``config.resampling`` must be ``"systematic"`` or
-    ``"stratified"`` (:data:`jaxnav.core.sharded.SCHEMES`) and ``config.gaussian_refresh`` off.
+    ``"stratified"`` (:data:`jaxnav.core.sharded.SCHEMES`), ``config.gaussian_refresh`` off and
+    ``config.gradient`` not ``"soft"``.
 
     Args:
         devices: ``None`` (every local device), a number ``D`` of local devices, or a sequence of
@@ -440,6 +459,8 @@ def run_sharded(
         )
     if config.gaussian_refresh:
         raise ValueError("config.gaussian_refresh is not available with the particles spread over devices")
+    if config.gradient == "soft":
+        raise ValueError("config.gradient 'soft' is not available with the particles spread over devices")
     return _sharded_program(config, chosen)(key, state, params, *inputs)
 
 

@@ -183,6 +183,14 @@ def _sinc_half(a: jax.Array) -> jax.Array:
     return jnp.where(small, 1.0 - h * h / 6.0, fastmath.sin(safe) / safe)
 
 
+def _noise_sd(variance: jax.Array) -> jax.Array:
+    """``√variance`` of a control's noise, with derivative 0 where the variance is 0 (a robot standing
+    still, or α's that are zero) instead of ``√``'s infinite one, which would make every gradient
+    with respect to the α's NaN. The values are ``jnp.sqrt``'s, bit for bit."""
+    positive = variance > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, variance, 1.0)), 0.0)
+
+
 def velocity_mean(pose: jax.Array, control: jax.Array, params: VelocityNoise | None = None) -> jax.Array:
     """Noise-free velocity motion ``g(u, x)`` (Thrun et al. eq. 5.9); ``u = (v, ω, Δt)``."""
     del params
@@ -199,9 +207,9 @@ def velocity_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     def noisy_controls() -> jax.Array:
         eps = rng.normal(k_ctrl, poses.shape[:-1] + (3,), poses.dtype)
         v2, w2 = v * v, w * w
-        v_hat = v + eps[..., 0] * jnp.sqrt(a[0] * v2 + a[1] * w2)
-        w_hat = w + eps[..., 1] * jnp.sqrt(a[2] * v2 + a[3] * w2)
-        g_hat = eps[..., 2] * jnp.sqrt(a[4] * v2 + a[5] * w2)
+        v_hat = v + eps[..., 0] * _noise_sd(a[0] * v2 + a[1] * w2)
+        w_hat = w + eps[..., 1] * _noise_sd(a[2] * v2 + a[3] * w2)
+        g_hat = eps[..., 2] * _noise_sd(a[4] * v2 + a[5] * w2)
         return _arc(poses, v_hat, w_hat, g_hat, dt)
 
     # With every α zero (pose noise only) the controls are exact: the arc's factor ``sinc(ωΔt/2)``
@@ -277,9 +285,9 @@ def odometry_sample(key: jax.Array, poses: jax.Array, control: jax.Array, params
     k_ctrl, k_pose = jax.random.split(key)
     eps = _standard_normal_unless_zero(k_ctrl, poses.shape[:-1] + (3,), poses.dtype, a)
     r1, t2, r2 = rot1 * rot1, trans * trans, rot2 * rot2
-    rot1_hat = rot1 - eps[..., 0] * jnp.sqrt(a[0] * r1 + a[1] * t2)
-    trans_hat = trans - eps[..., 1] * jnp.sqrt(a[2] * t2 + a[3] * (r1 + r2))
-    rot2_hat = rot2 - eps[..., 2] * jnp.sqrt(a[0] * r2 + a[1] * t2)
+    rot1_hat = rot1 - eps[..., 0] * _noise_sd(a[0] * r1 + a[1] * t2)
+    trans_hat = trans - eps[..., 1] * _noise_sd(a[2] * t2 + a[3] * (r1 + r2))
+    rot2_hat = rot2 - eps[..., 2] * _noise_sd(a[0] * r2 + a[1] * t2)
     moved = _apply_odometry(poses, rot1_hat, trans_hat, rot2_hat)
     return _add_pose_noise(k_pose, moved, params.pose_sd)
 

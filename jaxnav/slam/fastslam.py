@@ -71,7 +71,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core import fastmath, kalman, memory, resampling, rng, weights
+from jaxnav.core import fastmath, gradients, kalman, memory, resampling, rng, weights
 from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import PFInfo, at_least_one_slot, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
@@ -176,6 +176,10 @@ class FastSLAMConfig:
             and neither updated ``N`` times nor copied at resampling) or "auto" (shared when the
             model allows it). The filter is the same either way; shared covariances cut the map
             that resampling copies from ``D + D²`` to ``D`` floats per landmark.
+        gradient: how ``jax.grad`` of the log-likelihood passes resampling: ``"score"`` (default, the
+            forward pass unchanged) or ``"naive"`` (:mod:`jaxnav.core.gradients`); ``"soft"`` is
+            refused (its draw could make a particle whose map rows are not finite an ancestor).
+        soft_mixing: unused (``"soft"`` is refused).
     """
 
     # the fields that size the state, named when it is too large (jaxnav.core.memory)
@@ -190,11 +194,16 @@ class FastSLAMConfig:
     map_copy: str = "auto"
     parallel_slots: int = DEFAULT_PARALLEL_SLOTS
     covariance: str = "auto"
+    gradient: str = "score"
+    soft_mixing: float = 0.5
 
     def __post_init__(self) -> None:
         check_positive_int("num_particles", self.num_particles)
         check_positive_int("num_landmarks", self.num_landmarks)
         check_choice("version", self.version, (1, 2))
+        gradients.check_gradient(self.gradient, self.soft_mixing)
+        if self.gradient == "soft":  # its draw may pick a particle whose map rows are not finite
+            raise ValueError("gradient 'soft' is not available in FastSLAM; choose 'score' or 'naive'")
         check_motion_model("motion_model", self.motion_model)
         if not isinstance(self.observation_model, ObservationModel):
             check_choice("observation_model", self.observation_model, OBSERVATION_MODELS)
@@ -774,6 +783,8 @@ def kernel(
         threshold=config.ess_threshold if config.ess_threshold >= 1.0 else jnp.where(all_ok, config.ess_threshold, 1.0),
         scheme=config.resampling,
         angle_dims=_POSE_ANGLE_DIMS,
+        gradient=config.gradient,
+        soft_mixing=config.soft_mixing,
     )
     # copy the old maps from the ancestors, then write the step's rows (of the ancestors) over them:
     # one pass over the maps, and the old maps are never copied just to be updated

@@ -124,7 +124,12 @@ class SLAMInfo(PFInfo):
         estimate: ``[3]`` robot pose estimate (weighted mean, circular θ) after the update (m, m, rad).
         ess: robot effective sample size before resampling.
         resampled: bool, the robot particles were resampled.
-        log_likelihood: log marginal-likelihood increment of the robot filter.
+        log_likelihood: the log of the robot filter's normaliser, ``log Σ_i w̄_{t−1,i} ℓ_i`` with ``ℓ_i``
+            the robot particle's likelihood of the step's detections against the tag estimates.
+            A *pseudo*-likelihood, not ``log p(z_t | z_{1:t−1})``: those tag estimates were already
+            updated with the same detections, and at a lost step the robot particles were redrawn
+            first. Useful as a diagnostic (it falls when the robot is lost); it is not a marginal
+            likelihood and must not be maximised to fit parameters (:mod:`jaxnav.calibration`).
         degenerate: bool, every robot weight was zero and the set was reset to uniform.
         lost: bool, kidnapping recovery redrew the robot particles (see ``config.recovery``).
         num_ignored: valid slots whose tag ID is outside ``[0, max_tags)``, and tags whose update was not

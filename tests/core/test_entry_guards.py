@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxnav import calibration
 from jaxnav.core import batch, memory, weights
 from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import finish_step
@@ -70,8 +71,9 @@ SEARCHED_NAMES = [m.__name__ for m in SEARCHED] + [
     "jaxnav.core.batch",
     "jaxnav.experiments.registry",
     "jaxnav.experiments.sweep",
+    "jaxnav.calibration",
 ]
-KERNEL_PARTS = {"kernel", "sharded_kernel", "move_and_weight", "resample", "slam_step"}
+KERNEL_PARTS = {"kernel", "sharded_kernel", "move_and_weight", "resample", "slam_step", "log_likelihood"}
 """Pure pieces of a step, for use inside a caller's trace; they take the key a checked ``step`` gave them."""
 
 
@@ -105,6 +107,7 @@ def _calls() -> dict[str, tuple[Any, tuple, dict, bool]]:
         "mcl.init": (mcl.init, (mc, p, POSE), {}, False),
         "mcl.init_uniform": (mcl.init_uniform, (mc, p, bounds), {}, False),
         "mcl.run_sharded": (lambda key: mcl.run_sharded(key, None, mc, p, None, None, devices=1), (), {}, False),
+        "calibration.fit": (lambda key: calibration.fit(lambda k, q: 0.0, key, p, steps=1), (), {}, False),
         "kld_mcl.init": (kld_mcl.init, (kc, p, POSE), {}, False),
         "kld_mcl.init_uniform": (kld_mcl.init_uniform, (kc, p, bounds), {}, False),
         "augmented_mcl.init": (augmented_mcl.init, (ac, ap, POSE), {}, False),

@@ -91,6 +91,18 @@ for plain in (False, True):
         ]
     fastmath.use_plain_forms(False)
 
+# the gradient of the log-likelihood (stop-gradient resampling) through the spread filter, against run's
+from jaxnav import calibration
+from jaxnav.models import landmarks as lm
+config = mcl.MCLConfig(num_particles=4096, ess_threshold=0.5)
+state = mcl.init(jax.random.PRNGKey(0), config, params, start, jnp.full(3, 0.3))
+def log_lik(sd, spread):
+    p = params._replace(sensor=lm.RangeBearingNoise(sd))
+    if spread:
+        return mcl.run_sharded(jax.random.PRNGKey(5), state, config, p, controls, obs)[1].log_likelihood.sum()
+    return calibration.log_likelihood(mcl.kernel, jax.random.PRNGKey(5), state, config, p, controls, obs)
+out["gradients"] = [np.asarray(jax.grad(log_lik)(params.sensor.sd, spread)).tolist() for spread in (False, True)]
+
 config = mcl.MCLConfig(num_particles=30)
 state = mcl.init(jax.random.PRNGKey(0), config, params, start, jnp.full(3, 0.3))
 try:
@@ -118,6 +130,14 @@ def test_whole_rows_per_device_carry_the_unsharded_particles(child):
         assert r["ess_rel"] < 1e-5 and r["estimate"] < 1e-4 and r["log_likelihood"] < 1e-4, r
     conditional = [r for r in whole_rows if r["case"][1] < 1.0]
     assert conditional and all(0 < r["times_resampled"] < 25 for r in conditional)  # the decisions were tested
+
+
+def test_the_log_likelihood_gradient_is_run_s(child):
+    """The ancestors' log-weights travel with them (stop-gradient resampling): the gradient through the
+    spread filter is the unsharded one, up to the order of the sums."""
+    single, spread = (np.asarray(g) for g in child["gradients"])
+    assert np.all(np.isfinite(single)) and np.all(single != 0)
+    np.testing.assert_allclose(spread, single, rtol=1e-3)
 
 
 def test_smaller_blocks_agree_to_the_filter_s_accuracy(child):

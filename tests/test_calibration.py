@@ -1,0 +1,294 @@
+"""jaxnav.calibration: fitting a filter's parameters by its log-likelihood, and the gradient estimators
+through the filters' resampling (selected by the config's ``gradient``)."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from jaxnav import calibration
+from jaxnav.demo import START, demo_setting
+from jaxnav.localization import ekf, mcl
+from jaxnav.models import landmarks as lm
+from jaxnav.sim import landmark_world as world
+from jaxnav.sim import trajectories
+
+TRUE_SD = (0.2, 0.05)  # range (m) and bearing (rad) noise of the simulated data
+
+
+def _world(num_particles: int, num_steps: int, seed: int = 3):
+    config, params = demo_setting(num_particles)
+    params = params._replace(sensor=lm.RangeBearingNoise(jnp.asarray(TRUE_SD)))
+    controls = trajectories.loop_controls(num_steps, speed=0.5, turn_rate=0.21, dt=0.25)
+    sim = world.simulate(
+        jax.random.PRNGKey(seed), params.landmarks, jnp.asarray(START), controls, params.motion, params.sensor
+    )
+    return config, params, sim
+
+
+SENSOR_ONLY = mcl.MCLParams(motion=False, sensor=True, landmarks=False)
+
+
+@pytest.fixture(scope="module")
+def small():
+    config, params, sim = _world(128, 30)
+    state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START), jnp.asarray([0.05, 0.05, 0.02]))
+    return config, params, sim, state
+
+
+# --------------------------------------------------------------------------- the estimators in MCL
+
+
+@pytest.mark.parametrize("threshold", [1.0, 0.5])
+def test_score_estimator_leaves_the_forward_pass_unchanged(small, threshold, getkey):
+    config, params, sim, state = small
+    keys = jax.random.split(getkey(), 3)
+    runs = {}
+    for g in ("score", "naive"):
+        cfg = mcl.MCLConfig(128, ess_threshold=threshold, gradient=g)
+        runs[g] = jax.vmap(lambda k, cfg=cfg: calibration_run(k, state, cfg, params, sim))(keys)
+    for a, b in zip(jax.tree_util.tree_leaves(runs["score"]), jax.tree_util.tree_leaves(runs["naive"]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    if threshold < 1.0:
+        resampled = np.asarray(runs["score"][1].resampled)
+        assert 0 < resampled.mean() < 1  # the ESS rule decided both ways
+
+
+def calibration_run(key, state, config, params, sim):
+    from jaxnav.core import filter as filter_api
+
+    return filter_api.scan(mcl.kernel, key, state, config, params, sim.controls, sim.observations)
+
+
+def test_score_and_naive_gradients_differ(small, getkey):
+    config, params, sim, state = small
+    key = getkey()
+    grads = {}
+    for g in ("score", "naive"):
+        cfg = mcl.MCLConfig(128, gradient=g)
+        objective = calibration.log_likelihood_objective(mcl.kernel, cfg, state, (sim.controls, sim.observations))
+        grads[g] = jax.grad(lambda sd, o=objective: o(key, params._replace(sensor=lm.RangeBearingNoise(sd))))(
+            params.sensor.sd
+        )
+    assert not np.allclose(np.asarray(grads["score"]), np.asarray(grads["naive"]))
+
+
+@pytest.mark.parametrize("alpha", [1.0, 0.5, 0.0])
+def test_soft_gradient_is_finite_with_zero_weight_particles(alpha, getkey):
+    from jaxnav.core import resampling
+
+    def total(theta, key):
+        alive = jnp.asarray([True, True, False, True, False, True])
+        lw = jnp.where(alive, jnp.asarray([0.1, 0.5, 0.0, 0.2, 0.0, -0.3]) * theta, -jnp.inf)
+        lw = lw - jax.nn.logsumexp(lw)
+        res = resampling.conditional_resample(key, jnp.arange(6.0)[:, None], lw, gradient="soft", soft_mixing=alpha)
+        return jax.nn.logsumexp(res.log_weights + jnp.arange(6.0) * theta)
+
+    keys = jax.random.split(getkey(), 16)
+    grads = jax.vmap(jax.grad(total), (None, 0))(1.0, keys)
+    assert np.all(np.isfinite(np.asarray(grads)))
+
+
+def test_soft_resampling_carries_importance_weights(small, getkey):
+    config, params, sim, state = small
+    key = getkey()
+    soft = mcl.MCLConfig(128, gradient="soft", soft_mixing=0.3)
+    final, trace = mcl.run(key, state, soft, params, sim.controls, sim.observations)
+    w = np.exp(np.asarray(final.log_weights, np.float64))
+    assert np.all(np.asarray(trace.resampled))
+    assert abs(w.sum() - 1.0) < 1e-5 and w.std() > 0  # normalised, and not uniform after resampling
+    # α = 1 draws from the weights themselves: the ancestors (and so the particles) of plain resampling
+    plain = mcl.run(key, state, mcl.MCLConfig(128, gradient="naive"), params, sim.controls, sim.observations)
+    one = mcl.run(
+        key, state, mcl.MCLConfig(128, gradient="soft", soft_mixing=1.0), params, sim.controls, sim.observations
+    )
+    np.testing.assert_array_equal(np.asarray(one[0].particles), np.asarray(plain[0].particles))
+    np.testing.assert_allclose(np.asarray(one[0].log_weights), np.asarray(plain[0].log_weights), atol=1e-5)
+
+
+@pytest.mark.parametrize("gradient", ["score", "soft", "naive"])
+def test_every_estimator_gives_a_finite_gradient(small, gradient, getkey):
+    config, params, sim, state = small
+    cfg = mcl.MCLConfig(128, gradient=gradient)
+    objective = calibration.log_likelihood_objective(mcl.kernel, cfg, state, (sim.controls, sim.observations))
+    g = jax.grad(lambda sd: objective(getkey(), params._replace(sensor=lm.RangeBearingNoise(sd))))(params.sensor.sd)
+    assert np.all(np.isfinite(np.asarray(g))) and np.any(np.asarray(g) != 0)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"), [("gradient", "reinforce"), ("gradient", None), ("soft_mixing", 1.5), ("soft_mixing", True)]
+)
+def test_config_refuses_an_unknown_estimator(field, value):
+    with pytest.raises(ValueError, match=field):
+        mcl.MCLConfig(128, **{field: value})
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+@pytest.mark.slow
+def test_fit_recovers_the_sensor_noise_from_three_times_too_large(getkey):
+    """Data simulated with σ = (0.2 m, 0.05 rad); MCL (score estimator, Adam) and the EKF (its exact
+    likelihood, L-BFGS) start from 3σ. Their sampling error: the standard error of the EKF's maximum
+    likelihood estimate of log σ, from the observed information (the Hessian of the log-likelihood),
+    about 2.3 % here. Both fits must lie within 3 standard errors of the truth, and the particle
+    filter's optimum within half a standard error of the exact likelihood's (over six keys it lay
+    0.16–0.21 standard errors above it, with 200 particles and 2 filters per step)."""
+    num_steps = 100
+    config, params, sim = _world(200, num_steps)
+    wrong = params._replace(sensor=lm.RangeBearingNoise(3.0 * params.sensor.sd))
+    data = (sim.controls, sim.observations)
+    state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START), jnp.asarray([0.05, 0.05, 0.02]))
+    objective = calibration.log_likelihood_objective(mcl.kernel, config, state, data, num_seeds=2)
+    schedule = optax.cosine_decay_schedule(0.05, 80, alpha=0.1)  # smaller steps at the end: less gradient noise
+    fitted = calibration.fit(
+        objective, getkey(), wrong, trainable=SENSOR_ONLY, steps=80, optimizer=optax.adam(schedule)
+    )
+
+    ekf_config = ekf.EKFConfig()
+    ekf_state = ekf.init(None, ekf_config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.05, 0.05, 0.02]) ** 2))
+    exact = calibration.log_likelihood_objective(ekf.kernel, ekf_config, ekf_state, data)
+    best = calibration.fit(exact, getkey(), wrong, trainable=SENSOR_ONLY, steps=8, optimizer="lbfgs")
+
+    def total(log_sd):
+        return exact(getkey(), params._replace(sensor=lm.RangeBearingNoise(jnp.exp(log_sd)))) * num_steps
+
+    log_ekf = jnp.log(best.params.sensor.sd)
+    information = -np.asarray(jax.hessian(total)(log_ekf), np.float64)
+    se = np.sqrt(np.diag(np.linalg.inv(information)))
+    assert np.all(se < 0.05), se  # the data do pin the noise down
+    log_true = np.log(TRUE_SD)
+    log_mcl = np.log(np.asarray(fitted.params.sensor.sd))
+    assert np.all(np.abs(np.asarray(log_ekf) - log_true) < 3 * se), (best.params.sensor.sd, se)
+    assert np.all(np.abs(log_mcl - log_true) < 3 * se), (fitted.params.sensor.sd, se)
+    assert np.all(np.abs(log_mcl - np.asarray(log_ekf)) < 0.5 * se), (fitted.params.sensor.sd, best.params.sensor.sd)
+    assert fitted.losses[-1] < fitted.losses[0]
+    np.testing.assert_array_equal(fitted.trace.landmarks[-1], np.asarray(params.landmarks))  # not trained
+    np.testing.assert_allclose(fitted.trace.sensor.sd[-1], np.asarray(fitted.params.sensor.sd), rtol=1e-6)
+
+
+def test_fit_is_deterministic_and_compiles_once(small, getkey):
+    config, params, sim, state = small
+    traces = []
+    inner = calibration.log_likelihood_objective(mcl.kernel, config, state, (sim.controls, sim.observations))
+
+    def objective(key, p):
+        traces.append(1)  # runs once per trace, not per step
+        return inner(key, p)
+
+    key = getkey()
+    first = calibration.fit(objective, key, params, trainable=SENSOR_ONLY, steps=4)
+    assert len(traces) == 1
+    second = calibration.fit(objective, key, params, trainable=SENSOR_ONLY, steps=4)
+    np.testing.assert_array_equal(first.losses, second.losses)
+    np.testing.assert_array_equal(np.asarray(first.params.sensor.sd), np.asarray(second.params.sensor.sd))
+    assert first.losses.shape == (4,) and first.trace.sensor.sd.shape == (5, 2)
+
+
+def test_fit_trains_the_chosen_entries_only(small, getkey):
+    config, params, sim, state = small
+    objective = calibration.log_likelihood_objective(
+        mcl.kernel, config, state, (sim.controls, sim.observations), num_seeds=2
+    )
+    alphas = np.asarray(params.motion.alphas)
+    mask = mcl.MCLParams(
+        motion=type(params.motion)(alphas=alphas > 0, pose_sd=False), sensor=np.array([True, False]), landmarks=False
+    )
+    out = calibration.fit(objective, getkey(), params, trainable=mask, steps=3)
+    new_alphas = np.asarray(out.params.motion.alphas)
+    np.testing.assert_array_equal(new_alphas[alphas == 0], 0.0)  # zeros kept (the log transform cannot reach them)
+    assert np.all(new_alphas[alphas > 0] != alphas[alphas > 0])
+    assert out.params.sensor.sd[1] == params.sensor.sd[1] and out.params.sensor.sd[0] != params.sensor.sd[0]
+    np.testing.assert_array_equal(np.asarray(out.params.landmarks), np.asarray(params.landmarks))
+
+
+def test_fit_accepts_an_optax_optimizer_and_a_minibatch(getkey):
+    config, params, sim = _world(64, 12)
+    state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START))
+    stack = lambda tree: jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), tree)  # noqa: E731
+    objective = calibration.log_likelihood_objective(
+        mcl.kernel, config, stack(state), stack((sim.controls, sim.observations)), batched=True, batch_size=2
+    )
+    out = calibration.fit(objective, getkey(), params, trainable=SENSOR_ONLY, steps=2, optimizer=optax.sgd(1e-3))
+    assert np.all(np.isfinite(out.losses))
+
+
+def test_fit_takes_an_optax_line_search_and_a_schedule(small, getkey):
+    config, params, sim, state = small
+    objective = calibration.log_likelihood_objective(mcl.kernel, config, state, (sim.controls, sim.observations))
+    out = calibration.fit(objective, getkey(), params, trainable=SENSOR_ONLY, steps=2, optimizer=optax.lbfgs())
+    assert np.all(np.isfinite(out.losses))
+    schedule = optax.linear_schedule(0.05, 0.01, 2)
+    out = calibration.fit(objective, getkey(), params, trainable=SENSOR_ONLY, steps=2, learning_rate=schedule)
+    assert np.all(np.isfinite(out.losses))
+    np.testing.assert_array_equal(out.trace.sensor.sd[0], np.asarray(params.sensor.sd))  # the values passed
+
+
+def _bad_fit(small, **overrides):
+    config, params, sim, state = small
+    objective = calibration.log_likelihood_objective(mcl.kernel, config, state, (sim.controls, sim.observations))
+    kwargs = dict(trainable=SENSOR_ONLY, steps=1) | overrides
+    return calibration.fit(objective, jax.random.PRNGKey(0), kwargs.pop("params", params), **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "match"),
+    [
+        (dict(trainable=False), "nothing to fit"),
+        (dict(trainable=mcl.MCLParams(motion=False, sensor="yes", landmarks=False)), "trainable"),
+        (dict(trainable=True), r"params.*landmarks.*<= 0|params\.motion.*<= 0"),
+        (dict(transform="exp"), "transform"),
+        (dict(steps=-1), "steps"),
+        (dict(steps=1.5), "steps"),
+        (dict(learning_rate=math.nan), "learning_rate"),
+        (dict(learning_rate=-1.0), "learning_rate"),
+        (dict(optimizer="sgd"), "optimizer"),
+        (dict(params=None), "nothing to fit"),
+        (dict(params=None, trainable=True), "nothing to fit"),
+    ],
+)
+def test_fit_refuses_bad_arguments_by_name(small, overrides, match):
+    with pytest.raises(ValueError, match=match):
+        _bad_fit(small, **overrides)
+
+
+def test_fit_refuses_a_bad_key(small):
+    config, params, sim, state = small
+    objective = calibration.log_likelihood_objective(mcl.kernel, config, state, (sim.controls, sim.observations))
+    with pytest.raises(ValueError, match="key"):
+        calibration.fit(objective, None, params, trainable=SENSOR_ONLY, steps=1)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [(dict(num_seeds=0), "num_seeds"), (dict(batched=True, batch_size=5), "batch_size"), (dict(inputs=()), "inputs")],
+)
+def test_objective_refuses_bad_arguments_by_name(small, kwargs, match):
+    config, params, sim, state = small
+    inputs = kwargs.pop("inputs", (sim.controls, sim.observations))
+    if kwargs.get("batched"):
+        state, inputs = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], (state, inputs))
+    with pytest.raises(ValueError, match=match):
+        calibration.log_likelihood_objective(mcl.kernel, config, state, inputs, **kwargs)
+
+
+@pytest.mark.parametrize("model", ["velocity", "odometry"])
+def test_motion_noise_gradient_is_finite_when_the_robot_stands_still(model, getkey):
+    """√variance of a control's noise at zero variance (a robot standing still, or α's that are zero) must
+    not make the α gradient NaN: its derivative there is taken as 0."""
+    from jaxnav.models import motion
+
+    poses = jnp.zeros((16, 3))
+    if model == "velocity":
+        control, noise = jnp.asarray([0.0, 0.0, 0.1]), motion.VelocityNoise(jnp.full(6, 0.01), jnp.full(3, 0.01))
+    else:
+        control, noise = jnp.zeros(6), motion.OdometryNoise(jnp.full(4, 0.01), jnp.full(3, 0.01))
+    sample = motion.get_motion_model(model).sample
+    key = getkey()
+    grad = jax.grad(lambda a: jnp.sum(sample(key, poses, control, noise._replace(alphas=a)) ** 2))(noise.alphas)
+    assert np.all(np.isfinite(np.asarray(grad)))

@@ -85,6 +85,8 @@ SLOW_FILES = (
     "tests/test_cli.py",
     "tests/experiments/test_ir_experiments.py",
     "tests/slam/test_hf_slam_runs.py",
+    "tests/test_calibration.py",
+    "tests/core/test_gradient_estimators.py",
     "tests/core/test_processes.py",
     "tests/core/test_devices.py",
     "tests/localization/test_mcl_sharded.py",

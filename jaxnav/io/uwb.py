@@ -51,7 +51,7 @@ from jaxnav.io._files import open_regular
 from jaxnav.models import motion
 from jaxnav.models.range_only import RangeObs
 
-__all__ = ["DATASET", "UWBSequence", "data_dir", "load_labyrinth", "dead_reckoning"]
+__all__ = ["DATASET", "UWBSequence", "data_dir", "load_labyrinth", "segment", "dead_reckoning"]
 
 DATASET = "tuc-labyrinth-uwb"
 """The dataset's folder name under the data folder."""
@@ -210,6 +210,32 @@ def load_labyrinth(root: str | os.PathLike | None = None) -> UWBSequence:
     positions = truth[:, 1:3]
     start = np.array([positions[0, 0], positions[0, 1], _initial_heading(positions)])
     return UWBSequence(times, controls, obs, anchors, anchor_ids, positions, start, 2.0 * float(bases[0]), ranges[:, 2])
+
+
+def segment(sequence: UWBSequence, start: int, stop: int | None = None) -> UWBSequence:
+    """Steps ``start`` to ``stop`` (exclusive; default the end) of ``sequence`` as a sequence of their own:
+    the initial pose is the ground truth at step ``start`` with the heading of the next 0.1 m of path,
+    and the first step's ``Δt`` is 0 (the robot starts there, as at the log's first step)."""
+    num_steps = sequence.times.size
+    stop = num_steps if stop is None else stop
+    for name, value in (("start", start), ("stop", stop)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{name} must be an int, got {value!r}")
+    if not 0 <= start < stop <= num_steps:
+        raise ValueError(f"need 0 <= start < stop <= {num_steps} (the steps), got start={start}, stop={stop}")
+    cut = slice(start, stop)
+    controls = sequence.controls[cut].copy()
+    controls[0, 2] = 0.0
+    positions = sequence.true_positions[cut]
+    pose = np.array([positions[0, 0], positions[0, 1], _initial_heading(positions)])
+    return sequence._replace(
+        times=sequence.times[cut],
+        controls=controls,
+        observations=RangeObs(*(np.asarray(a)[cut] for a in sequence.observations)),
+        true_positions=positions,
+        initial_pose=pose,
+        range_variance=sequence.range_variance[cut],
+    )
 
 
 def dead_reckoning(sequence: UWBSequence, initial_pose: np.ndarray | None = None) -> jax.Array:

@@ -56,8 +56,8 @@ TRAINABLE = mcl.MCLParams(
     sensor=True,
     landmarks=False,
 )
-"""What is learned: ``α₁…α₄``, the pose noise and the range-bearing noise; ``α₅, α₆`` (zero) and the
-map are kept."""
+"""The fields learned (``α₁…α₄``, the pose noise and the range-bearing noise); ``α₅, α₆`` (zero) and
+the map are kept."""
 
 _DEFAULT_STEPS = {"mcl": 60, "ekf": 20}
 

@@ -359,6 +359,8 @@ def _mrclam_calibration(args: argparse.Namespace, robots: list[int]) -> int:
 
 
 def _cmd_uwb(args: argparse.Namespace) -> int:
+    if args.calibrate is not None:
+        return _uwb_calibration(args)
     algorithms = _names("--algorithms", args.algorithms, UWB_ALGORITHMS, "algorithm")
     if args.out:
         _check_out_files("--out", args.out, [args.out])
@@ -660,6 +662,29 @@ pip install 'jaxnav[plot]').""",
     demo.set_defaults(func=_cmd_demo)
 
 
+def _uwb_calibration(args: argparse.Namespace) -> int:
+    """``jaxnav uwb --calibrate METHOD``: the range bias and spread learned on the first half, tested on the second."""
+    chosen = args.algorithms if args.algorithms != ",".join(UWB_ALGORITHMS) else "ekf,mcl"
+    algorithms = _names("--algorithms", chosen, UWB_ALGORITHMS, "algorithm")
+    from jaxnav.experiments.uwb import calibration as cal
+    from jaxnav.io import uwb as data
+
+    folder = data.data_dir(args.data)
+    print(
+        f"jaxnav {__version__}: TU Chemnitz Labyrinth UWB dataset from {folder}; range model learned by "
+        f"{args.calibrate.upper()} on the first half, filters run on the second half, seed {args.seed}"
+    )
+    print("Labyrinth dataset, Copyright 2017-2023 Tim Pfeifer (TU Chemnitz), CC BY-SA 4.0, distributed with libRSF")
+    _compiling(f"fitting the range bias and spread, then running {', '.join(algorithms)} with three range models…")
+    fit, rows = cal.run_study(args.calibrate, algorithms, runs=args.runs, seed=args.seed, root=args.data)
+    print(
+        f"fitted in {fit.seconds:.0f} s: bias {fit.settings.range_bias:.3f} m, spread {fit.settings.range_sd:.3f} m "
+        f"(mean log-likelihood per step {-fit.result.losses[0]:.3f} -> {-fit.result.losses[-1]:.3f})"
+    )
+    print(cal.format_table(rows))
+    return 0
+
+
 def _add_mrclam_command(sub) -> None:
     """``jaxnav mrclam``: the filters of [A] ch. 2 on the MRCLAM dataset."""
     mr = _command(
@@ -744,6 +769,10 @@ and draws a PNG (needs matplotlib).
                 "MCL with Student-t ranges and range-only PF-SLAM, 3 runs, no PNG",
                 "jaxnav uwb --algorithms mcl_t,pf_slam --runs 3 --out ''",
             ),
+            (
+                "range bias and spread learned by the EKF on the first half; EKF and MCL on the second half",
+                "jaxnav uwb --calibrate ekf",
+            ),
         ),
     )
     uw.add_argument(
@@ -755,6 +784,14 @@ and draws a PNG (needs matplotlib).
     uw.add_argument("--seed", type=_seed, default=0, help="seed of the particle filters (default 0)")
     uw.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     uw.add_argument("--out", default="jaxnav-uwb.png", help="PNG to write ('' for none; default jaxnav-uwb.png)")
+    uw.add_argument(
+        "--calibrate",
+        choices=("ekf", "mcl"),
+        default=None,
+        help="learn the range bias and spread on the log's first half by the EKF's likelihood (L-BFGS) or MCL's "
+        "(score gradient, Adam), then run --algorithms (default ekf,mcl) on the second half with the learned, the "
+        "hand-set and an unbiased range model; draws no PNG",
+    )
     uw.set_defaults(func=_cmd_uwb)
 
 

@@ -53,3 +53,10 @@ def test_unknown_method_is_refused():
 
     with pytest.raises(ValueError, match="method"):
         cal.fit_range_noise(None, method="ukf")
+
+
+def test_cli_calibrate_refuses_an_unknown_algorithm(capsys):
+    from jaxnav import cli
+
+    assert cli.main(["uwb", "--calibrate", "ekf", "--algorithms", "kalman"]) == 2
+    assert "--algorithms" in capsys.readouterr().err

@@ -180,10 +180,6 @@ def log_likelihood_objective(
 # --------------------------------------------------------------------------- the fit
 
 
-def _leaf_paths(tree: Any) -> list[str]:
-    return [jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_flatten_with_path(tree)[0]]
-
-
 def _broadcast(prefix: Any, params: Any, name: str) -> list:
     """``prefix`` (a value, or a pytree prefix of ``params``) repeated over ``params``' leaves, as a list."""
     if callable(prefix) and not isinstance(prefix, str):
@@ -279,10 +275,11 @@ def fit(
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         raise ValueError(f"steps must be a non-negative int, got {steps!r}")
     opt, line_search = _optimizer(optimizer, learning_rate)
-    leaves, treedef = jax.tree_util.tree_flatten(params)
-    if not leaves:
+    flat, treedef = jax.tree_util.tree_flatten_with_path(params)
+    if not flat:
         raise ValueError("params has no leaves: nothing to fit")
-    paths = _leaf_paths(params)
+    paths = [jax.tree_util.keystr(path) for path, _ in flat]
+    leaves = [leaf for _, leaf in flat]
     mask = _broadcast(trainable, params, "trainable")
     names = _broadcast(transform, params, "transform")
     index, masks, u0 = [], [], []

@@ -14,8 +14,8 @@ drawn from the key), so gradients pass the moves pathwise in all three.
     score of the selection, into every later increment. ``∇Ẑ`` is then an unbiased estimate of
     ``∇Z`` with multinomial resampling and no refresh (the other schemes' ancestors are not
     independent draws, and the same correction treats them as if they were: with systematic
-    resampling it passed the same z-test in ``tests/core/test_gradient_estimators.py``; a Gaussian or kernel refresh
-    redraws the particles the correction is attached to), and ``∇ log Ẑ = ∇Ẑ / Ẑ`` a consistent
+    resampling it passed the same z-test in ``tests/core/test_gradient_estimators.py``; a
+    Gaussian or kernel refresh redraws the particles the correction is attached to), and ``∇ log Ẑ = ∇Ẑ / Ẑ`` a consistent
     estimate of the score ``∇ log p(z_{1:T} | θ)`` — Fisher's identity over the particles'
     genealogy (Poyiadjis, Doucet & Singh 2011), whose variance grows with the length of the run.
 ``"soft"``: soft resampling (Karkus, Hsu & Lee 2018). Ancestors are drawn from the mixture

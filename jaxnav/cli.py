@@ -526,6 +526,8 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
             f"--experiment: unknown experiment {args.experiment!r}; {adarf.data_dir(args.data)} holds "
             f"{', '.join(available) or 'none'} with its {adarf.NUM_POINTS} files and a ground truth"
         )
+    if args.calibrate:
+        return _uhf_calibrate(args, setting, names)
     if args.out:
         _check_out_files("--out", args.out, [f"{args.out}-{name}.png" for name in names])
     print(
@@ -542,6 +544,24 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
     if args.out:
         for name, res in zip(names, results):
             _write_plot(lambda path, res=res: xp.plot_results(res, path), f"{args.out}-{name}.png")
+    return 0
+
+
+def _uhf_calibrate(args: argparse.Namespace, setting, names) -> int:
+    """``jaxnav uhf-real --calibrate``: (k, θ, σ_phase) learned two ways against the closed-form fit."""
+    from jaxnav.experiments.uhf import calibration as cal
+    from jaxnav.io import adarf
+
+    print(
+        f"jaxnav {__version__} uhf-real --calibrate: (k, θ, σ_phase) by maximum likelihood on the AdaRF reads "
+        f"({adarf.data_dir(args.data)}): 'anchor' from the anchor tag at its known position (L-BFGS), 'filter' "
+        f"from each tag's own reads through the particle filter (Adam); 'closed-form' is [A]'s (k, θ) with "
+        f"σ_phase = {setting.phase_sigma_fraction:g} λ. Final error of the combined weighting, "
+        f"{setting.num_particles} particles, mean of {args.seeds} seed(s) from {args.seed}"
+    )
+    _compiling("fitting and filtering…")
+    rows = cal.run_study(names, seeds=args.seeds, seed=args.seed, root=args.data, setting=setting)
+    print(cal.format_table(rows))
     return 0
 
 
@@ -936,6 +956,10 @@ the ground truth beside that of a uniform guess, and draws the estimates into a 
                 "every weighting over 3 seeds; writes jaxnav-uhf-real-181218-01-50-8.png",
                 "jaxnav uhf-real --seeds 3",
             ),
+            (
+                "σ_phase and (k, θ) learned by maximum likelihood on every experiment, against [A]'s fit",
+                "jaxnav uhf-real --calibrate --experiment all --seeds 5",
+            ),
         ),
     )
     ur.add_argument(
@@ -960,6 +984,11 @@ the ground truth beside that of a uniform guess, and draws the estimates into a 
     ur.add_argument("--seed", type=_seed, default=0, help="first seed (default 0)")
     ur.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
     ur.add_argument("--out", default="jaxnav-uhf-real", help="PNG prefix ('' for none; default jaxnav-uhf-real)")
+    ur.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="learn (k, θ, σ_phase) by maximum likelihood (anchor; filter) and compare with the closed form",
+    )
     ur.set_defaults(func=_cmd_uhf_real)
 
 

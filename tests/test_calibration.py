@@ -13,7 +13,7 @@ import pytest
 
 from jaxnav import calibration
 from jaxnav.demo import START, demo_setting
-from jaxnav.localization import ekf, mcl
+from jaxnav.localization import ekf, mcl, ukf
 from jaxnav.models import landmarks as lm
 from jaxnav.sim import landmark_world as world
 from jaxnav.sim import trajectories
@@ -94,6 +94,32 @@ def test_soft_gradient_is_finite_with_zero_weight_particles(alpha, getkey):
     assert np.all(np.isfinite(np.asarray(grads)))
 
 
+def test_soft_step_that_keeps_no_live_particle_is_flagged_degenerate(getkey):
+    """N = 64, one particle of positive weight, α = 0 (the proposal uniform), multinomial: about 37 % of
+    the draws pick no live ancestor, and exactly those steps report ``degenerate`` with uniform carried weights; the
+    other estimators never flag a step whose update kept a live particle."""
+    from jaxnav.core import particle_filter, weights
+
+    n = 64
+    norm = weights.normalize(jnp.where(jnp.arange(n) == 5, 0.0, -jnp.inf))
+    particles = jnp.arange(float(n))[:, None]
+
+    def flags(key, gradient):
+        res, info = particle_filter.finish_step(
+            key, particles, norm, scheme="multinomial", gradient=gradient, soft_mixing=0.0
+        )
+        return info.degenerate, jnp.any(res.ancestors == 5), res.log_weights
+
+    keys = jax.random.split(getkey(), 200)
+    degenerate, kept, carried = jax.vmap(lambda k: flags(k, "soft"))(keys)
+    degenerate, kept = np.asarray(degenerate), np.asarray(kept)
+    np.testing.assert_array_equal(degenerate, ~kept)
+    assert 0.2 < degenerate.mean() < 0.55, degenerate.mean()
+    np.testing.assert_allclose(np.asarray(carried)[degenerate], -math.log(n), rtol=1e-6)
+    for gradient in ("score", "naive"):
+        assert not np.any(np.asarray(jax.vmap(lambda k, g=gradient: flags(k, g)[0])(keys)))
+
+
 def test_soft_resampling_carries_importance_weights(small, getkey):
     config, params, sim, state = small
     key = getkey()
@@ -158,6 +184,11 @@ def test_fit_recovers_the_sensor_noise_from_three_times_too_large(getkey):
     def total(log_sd):
         return exact(getkey(), params._replace(sensor=lm.RangeBearingNoise(jnp.exp(log_sd)))) * num_steps
 
+    ukf_config = ukf.UKFConfig()
+    ukf_state = ukf.init(None, ukf_config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.05, 0.05, 0.02]) ** 2))
+    unscented = calibration.log_likelihood_objective(ukf.kernel, ukf_config, ukf_state, data)
+    sigma_points = calibration.fit(unscented, getkey(), wrong, trainable=SENSOR_ONLY, steps=8, optimizer="lbfgs")
+
     log_ekf = jnp.log(best.params.sensor.sd)
     information = -np.asarray(jax.hessian(total)(log_ekf), np.float64)
     se = np.sqrt(np.diag(np.linalg.inv(information)))
@@ -167,6 +198,9 @@ def test_fit_recovers_the_sensor_noise_from_three_times_too_large(getkey):
     assert np.all(np.abs(np.asarray(log_ekf) - log_true) < 3 * se), (best.params.sensor.sd, se)
     assert np.all(np.abs(log_mcl - log_true) < 3 * se), (fitted.params.sensor.sd, se)
     assert np.all(np.abs(log_mcl - np.asarray(log_ekf)) < 0.5 * se), (fitted.params.sensor.sd, best.params.sensor.sd)
+    log_ukf = np.log(np.asarray(sigma_points.params.sensor.sd))
+    assert np.all(np.abs(log_ukf - np.asarray(log_ekf)) < se), (sigma_points.params.sensor.sd, best.params.sensor.sd)
+    assert sigma_points.losses[-1] < sigma_points.losses[0]
     assert fitted.losses[-1] < fitted.losses[0]
     np.testing.assert_array_equal(fitted.trace.landmarks[-1], np.asarray(params.landmarks))  # not trained
     np.testing.assert_allclose(fitted.trace.sensor.sd[-1], np.asarray(fitted.params.sensor.sd), rtol=1e-6)

@@ -88,8 +88,9 @@ def soft_carried_log_weights(log_weights: jax.Array, log_proposal: jax.Array, an
 
     An ancestor of zero weight (drawn from the uniform part of ``q`` when ``α < 1``) carries zero
     weight. With a small ``α`` every ancestor of a step can be one (with N = 64, one particle of
-    positive weight and ``α = 0``, about 37 % of the draws); the carried weights are then reset to
-    uniform, as :func:`jaxnav.core.weights.normalize` does with a degenerate set.
+    positive weight and ``α = 0``, about 37 % of the multinomial draws); the carried weights are then
+    reset to uniform, as :func:`jaxnav.core.weights.normalize` does with a degenerate set, and a
+    filter's step reports it in ``info.degenerate`` (:func:`jaxnav.core.particle_filter.finish_step`).
     """
     picked = jnp.take(log_weights, ancestors, axis=0, mode="clip")
     finite = jnp.isfinite(picked)

@@ -141,7 +141,9 @@ def finish_step(
 
     Returns:
         ``(ResampleResult, PFInfo)``: the particles and log-weights to carry on (with the
-        ancestors), and the step's diagnostics.
+        ancestors), and the step's diagnostics. With ``gradient="soft"``, ``info.degenerate`` is
+        also set at a step whose draw kept no particle of positive weight (its carried weights
+        were reset to uniform, :func:`jaxnav.core.gradients.soft_carried_log_weights`).
     """
     probs = jnp.exp(norm.log_weights)
     estimate = weights.mean_from_probabilities(particles, probs, angle_dims)
@@ -158,4 +160,8 @@ def finish_step(
         gradient=gradient,
         soft_mixing=soft_mixing,
     )
-    return res, PFInfo(estimate, ess, res.resampled, norm.log_norm, norm.degenerate)
+    degenerate = norm.degenerate
+    if gradient == "soft":  # every ancestor drawn had zero weight: the carried weights were reset to uniform
+        picked = jnp.take(norm.log_weights, res.ancestors, axis=0, mode="clip")
+        degenerate = degenerate | (res.resampled & ~jnp.any(jnp.isfinite(picked)))
+    return res, PFInfo(estimate, ess, res.resampled, norm.log_norm, degenerate)

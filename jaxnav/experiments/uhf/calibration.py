@@ -179,16 +179,12 @@ class StudyRow(NamedTuple):
 
 
 def final_errors(params, reads, truth, seeds: int, seed: int, tag: int, num_particles: int) -> np.ndarray:
-    """``[seeds]`` final errors (m) of the combined filter on ``reads`` against ``truth [2]``.
-
-    Run ``r`` uses the keys of :func:`jaxnav.experiments.uhf.real.localize` for tag ``tag`` from ``seed``."""
+    """``[seeds]`` final errors (m) of the combined filter on ``reads`` against ``truth [2]``, with the keys
+    of :func:`jaxnav.experiments.uhf.real.localize` for tag ``tag`` from ``seed``
+    (:func:`~jaxnav.experiments.uhf.real.seeded_estimates`)."""
     config = rfid_tag.RFIDTagConfig(num_particles=num_particles, dims=2, weighting="combined")
-    out = []
-    for r in range(seeds):
-        k_init, k_run = jax.random.split(jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), tag), r))
-        _, trace = rfid_tag.run(k_run, rfid_tag.init(k_init, config, params), config, params, reads)
-        out.append(np.linalg.norm(np.asarray(trace.estimate[-1, :2], np.float64) - truth))
-    return np.asarray(out)
+    est = real.seeded_estimates(params, config, reads, seeds, seed, tag)
+    return np.linalg.norm(est[:, -1] - truth, axis=-1)
 
 
 def run_study(
@@ -210,18 +206,21 @@ def run_study(
     check_positive_int("seeds", seeds)
     setting = real.RealSetting() if setting is None else setting
     names = list(adarf.available_experiments(root) if experiments is None else experiments)
+    lam = float(real.channel_params().wavelength)
+    h = setting.antenna_height
     rows = []
     for name in names:
         exp = adarf.load_experiment(name, root)
-        h = setting.antenna_height
         reads = [adarf.to_uhf_reads(exp, g, setting.reads_per_channel, antenna_height=h) for g in range(3)]
-        lam = float(real.channel_params().wavelength)
-        for g in range(3):
-            a = real.ANCHOR_OF[g]
+        by_anchor = {}  # an anchor serves two tags: its fits are made once
+        for a in sorted(set(real.ANCHOR_OF)):
             closed = closed_form_params(reads[a], exp.tags_xy[a], setting)
+            by_anchor[a] = (closed, fit_anchor(reads[a], (*exp.tags_xy[a], h), closed).params)
+        for g in range(3):
+            closed, anchored = by_anchor[real.ANCHOR_OF[g]]
             fitted = {
                 "closed-form": closed,
-                "anchor": fit_anchor(reads[a], (*exp.tags_xy[a], h), closed).params,
+                "anchor": anchored,
                 "filter": fit_filter(
                     jax.random.fold_in(jax.random.PRNGKey(1), g), reads[g], closed, steps=filter_steps
                 ).params,

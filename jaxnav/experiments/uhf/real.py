@@ -63,6 +63,7 @@ __all__ = [
     "channel_params",
     "anchor_gamma",
     "prior_rmse",
+    "seeded_estimates",
     "memory_estimate",
     "localize",
     "format_results",
@@ -177,6 +178,21 @@ def _params(setting: RealSetting, gamma: U.GammaParams) -> rfid_tag.RFIDTagParam
     )
 
 
+def seeded_estimates(
+    params: rfid_tag.RFIDTagParams, config: rfid_tag.RFIDTagConfig, reads: U.UHFReads, seeds: int, seed: int, tag: int
+) -> np.ndarray:
+    """``[seeds, T, 2]`` the estimates of ``seeds`` runs of the tag filter on ``reads`` (m).
+
+    Run ``r`` of tag ``tag`` uses ``fold_in(fold_in(PRNGKey(seed), tag), r)``, split into the init and
+    run keys: the keys of :func:`localize`, so every setting of a tag sees the same draws."""
+    est = []
+    for r in range(seeds):
+        k_init, k_run = jax.random.split(jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), tag), r))
+        _, trace = rfid_tag.run(k_run, rfid_tag.init(k_init, config, params), config, params, reads)
+        est.append(np.asarray(trace.estimate[:, :2], np.float64))
+    return np.stack(est)
+
+
 def localize(
     experiment: str,
     weightings: Sequence[str] = rfid_tag.WEIGHTINGS,
@@ -205,12 +221,7 @@ def localize(
         params = _params(setting, fit.params)
         for w in weightings:
             config = rfid_tag.RFIDTagConfig(num_particles=setting.num_particles, dims=2, weighting=w)
-            est = []
-            for r in range(seeds):
-                k_init, k_run = jax.random.split(jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(seed), g), r))
-                _, trace = rfid_tag.run(k_run, rfid_tag.init(k_init, config, params), config, params, reads[g])
-                est.append(np.asarray(trace.estimate[:, :2], np.float64))
-            est = np.stack(est)
+            est = seeded_estimates(params, config, reads[g], seeds, seed, g)
             err = np.linalg.norm(est - exp.tags_xy[g], axis=-1)
             out.append(
                 TagResult(

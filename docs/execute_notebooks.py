@@ -14,10 +14,10 @@ timing, widget state).
 
 A notebook whose metadata names a dataset it cannot run without
 (``"jaxnav": {"requires_data": "<folder>"}``) is left as it is, with a message, when that folder is
-not in the data folder (``$JAXNAV_DATA``, else ``../shared/data``, see :mod:`jaxnav.io`). A notebook
-that uses a dataset in one section only (``"jaxnav": {"uses_data": "<folder>"}``) is left as it is
-too when the folder is absent, unless ``--without-data`` is given: its real-data section then holds a
-one-line message instead of results.
+not in the data folder (``$JAXNAV_DATA``, else ``../shared/data`` relative to the repository, see
+:mod:`jaxnav.io`). A notebook that uses a dataset in one section only (``"jaxnav": {"uses_data":
+"<folder>"}``) is left as it is too when the folder is absent, unless ``--without-data`` is given: its
+real-data section then holds a one-line message instead of results.
 
 Exit status: 0 when every notebook named ran without error (or was left for want of its data),
 1 otherwise. A notebook that raises is not written back.
@@ -54,8 +54,8 @@ def data_folders() -> list[pathlib.Path]:
 def dataset_present(folder: str) -> bool:
     """Whether ``<data>/<folder>`` exists in one of the data folders; if so, the kernels are pointed at it.
 
-    The kernels run in a temporary folder, where ``../shared/data`` relative to the current folder
-    means nothing: ``$JAXNAV_DATA`` is set to the data folder found here.
+    The kernels run in a temporary folder and may import an installed jaxnav, which has no default
+    data folder: ``$JAXNAV_DATA`` is set to the data folder found here.
     """
     base = next((base for base in data_folders() if (base / folder).is_dir()), None)
     if base is not None:

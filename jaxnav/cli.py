@@ -9,6 +9,17 @@ folder, a named pipe or a device), and the sizes of a run must fit in this
 machine's memory. Outputs are written to a temporary file renamed into place:
 a full disk (or a quota, a read-only file system) is one line naming the file,
 and leaves no truncated file behind.
+
+``--out`` has one meaning per kind of output. A command that draws one figure
+(``demo``, ``uwb``, ``hf-slam``, ``ir``) writes it to the FILE ``--out`` names,
+exactly as given, its extension choosing the format (``.png``, ``.pdf``, ``.svg``,
+…). A command that writes several files (``mrclam``: one PNG per robot,
+``uhf-real``: one per experiment, ``experiments``: JSON, Markdown and PNG) writes
+them into the FOLDER ``--out`` names, created if missing. ``--out ''`` writes
+no figure. The forms of earlier releases still work, with a deprecation warning
+on stderr: ``hf-slam`` and ``ir`` append ``.png`` to a name without a figure
+extension, and ``mrclam`` and ``uhf-real`` read a name that is no folder and does
+not end in ``/`` as a prefix of the file names (``PREFIX-robot1.png``).
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ import os
 import stat
 import sys
 import tempfile
+import textwrap
 import warnings
 import zlib
 
@@ -169,6 +181,77 @@ def _check_out_dir(option: str, value: str) -> None:
     _check_folder_takes_files(option, value, existing)
 
 
+FIGURE_FORMATS = (
+    "png", "pdf", "svg", "svgz", "eps", "ps", "jpg", "jpeg", "tif", "tiff", "webp", "avif", "gif", "pgf", "raw", "rgba"
+)  # fmt: skip
+"""The extensions of a figure's ``--out`` taken as its format (those matplotlib writes)."""
+
+
+def _deprecated(args: argparse.Namespace, message: str) -> None:
+    """Say on stderr, in one line, that an option was given in a form that the next release drops."""
+    print(f"jaxnav {args.command}: warning: deprecated: {message}", file=sys.stderr, flush=True)
+
+
+def _out_file(args: argparse.Namespace, *, old_adds_png: bool = False) -> str | None:
+    """The figure file ``--out`` names (a command that draws one figure), checked; None for ``--out ''``.
+
+    The name is used as given, its extension choosing the format; one that is not a figure format is
+    refused. With ``old_adds_png`` (``hf-slam``, ``ir``, whose ``--out`` was a path without ``.png``), a
+    name without a figure extension still gets ``.png`` appended, with a deprecation warning."""
+    value = args.out
+    if not value:
+        return None
+    ext = os.path.splitext(value)[1]
+    known = ext[1:].lower() in FIGURE_FORMATS
+    if old_adds_png and not known:
+        path = value + ".png"
+        _check_out_files("--out", value, [path])
+        _deprecated(
+            args,
+            f"--out {value!r} has no figure extension: {path} is written, as before; give the extension "
+            f"(--out {path}): the next release writes the name as given",
+        )
+        return path
+    if ext and not known:
+        raise ValueError(
+            f"--out {value!r}: {ext} is not a figure format; end the name in one that matplotlib writes: "
+            f"{', '.join('.' + f for f in FIGURE_FORMATS)}"
+        )
+    _check_out_files("--out", value, [value])
+    return value
+
+
+def _is_folder_form(value: str) -> bool:
+    """Whether ``--out VALUE`` of a command writing several files names a folder: it ends in ``/``
+    or is one. Any other name is the prefix of the file names of earlier releases (deprecated)."""
+    ends = tuple(sep for sep in (os.sep, os.altsep) if sep)
+    return value.endswith(ends) or os.path.isdir(value)
+
+
+def _out_folder(args: argparse.Namespace, names: list[str]) -> list[str]:
+    """The files ``names`` in the folder ``--out`` names (a command writing several files), checked;
+    none for ``--out ''``. A name that is no folder and does not end in ``/`` is the prefix of earlier
+    releases: ``PREFIX-NAME`` is written, with a deprecation warning."""
+    value = args.out
+    if not value:
+        return []
+    if _is_folder_form(value):
+        _check_out_dir("--out", value)
+        paths = [os.path.join(value, name) for name in names]
+        _check_out_kinds("--out", value, paths)
+        return paths
+    paths = [f"{value}-{name}" for name in names]
+    _check_out_files("--out", value, paths)
+    folder = value + "/"
+    _deprecated(
+        args,
+        f"--out {value!r} is read as a prefix ({paths[0]}{', …' if len(paths) > 1 else ''}), as before; "
+        f"--out now names a folder: give --out {folder} to write {os.path.join(folder, names[0])}"
+        f"{', …' if len(names) > 1 else ''} (the next release reads every --out as a folder)",
+    )
+    return paths
+
+
 def _memory_bytes() -> int:
     """The memory this process may use (bytes; :func:`jaxnav.core.memory.host_memory_bytes`); 0 when unknown."""
     from jaxnav.core import memory
@@ -225,6 +308,9 @@ def _write_plot(draw, path: str) -> None:
     PNG, and the error names ``path``), and say where the PNG went, or that matplotlib is missing."""
     from jaxnav.io._files import write_atomic_path
 
+    folder = os.path.dirname(path)
+    if folder:  # a folder --out of mrclam and uhf-real, checked to be creatable
+        os.makedirs(folder, exist_ok=True)
     try:
         write_atomic_path(path, draw)
     except ImportError:
@@ -234,8 +320,7 @@ def _write_plot(draw, path: str) -> None:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    if args.out:
-        _check_out_files("--out", args.out, [args.out])
+    out = _out_file(args)
     # about 64 numbers a particle (one MCL step's arrays) and a step (the recorded run), doubled for XLA
     _check_memory(
         2 * 4 * (64 * args.particles + 64 * args.steps), f"--particles ({args.particles}) or --steps ({args.steps})"
@@ -256,8 +341,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     if last % every:
         print(f"{last + 1:>6} {(last + 1) * result.dt:>9.2f} {result.position_error[last]:>19.3f}")
     print(f"mean position error over the run: {result.position_error.mean():.3f} m")
-    if args.out:
-        _write_plot(lambda path: plot_demo(result, path), args.out)
+    if out:
+        _write_plot(lambda path: plot_demo(result, path), out)
     return 0
 
 
@@ -277,8 +362,7 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
     if args.calibrate is not None:
         return _mrclam_calibration(args, robots)
     algorithms = _names("--algorithms", args.algorithms, MRCLAM_ALGORITHMS, "algorithm")
-    if args.out:
-        _check_out_files("--out", args.out, [f"{args.out}-robot{r}.png" for r in robots])
+    pngs = dict(zip(robots, _out_folder(args, [f"robot{r}.png" for r in robots])))
     from jaxnav.experiments import mrclam as xp
     from jaxnav.io import mrclam as data
 
@@ -301,8 +385,8 @@ def _cmd_mrclam(args: argparse.Namespace) -> int:
             f"robot {robot}: {seq.controls.shape[0]} steps of {seq.dt:g} s, {seq.num_placed} measurements "
             f"({seq.num_outliers} of other robots or unknown barcodes, ignored by the filters)"
         )
-        if args.out:
-            _write_plot(lambda path: xp.plot_robot(seq, results, path), f"{args.out}-robot{robot}.png")
+        if pngs:
+            _write_plot(lambda path: xp.plot_robot(seq, results, path), pngs[robot])
     print(xp.format_table(rows))
     return 0
 
@@ -362,8 +446,7 @@ def _cmd_uwb(args: argparse.Namespace) -> int:
     if args.calibrate is not None:
         return _uwb_calibration(args)
     algorithms = _names("--algorithms", args.algorithms, UWB_ALGORITHMS, "algorithm")
-    if args.out:
-        _check_out_files("--out", args.out, [args.out])
+    out = _out_file(args)
     from jaxnav.experiments import uwb as xp
     from jaxnav.io import uwb as data
 
@@ -377,8 +460,8 @@ def _cmd_uwb(args: argparse.Namespace) -> int:
     print(
         f"{seq.times.size} steps over {seq.times[-1] - seq.times[0]:.1f} s, one range per step, {seq.anchors.shape[0]} anchors"
     )
-    if args.out:
-        _write_plot(lambda path: xp.plot_study(seq, results, path), args.out)
+    if out:
+        _write_plot(lambda path: xp.plot_study(seq, results, path), out)
     print(xp.format_table(results))
     return 0
 
@@ -422,8 +505,7 @@ def _hf_setting(args: argparse.Namespace):
 
 def _cmd_hf_slam(args: argparse.Namespace) -> int:
     setting = _hf_setting(args)
-    if args.out:
-        _check_out_files("--out", args.out, [f"{args.out}.png"])
+    out = _out_file(args, old_adds_png=True)
     import jax
     import numpy as np
 
@@ -450,8 +532,8 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
             f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}"
         )
     print(xp.format_errors([(args.method, errors)]))
-    if args.out:
-        _write_plot(lambda path: xp.plot_run(setting, args.method, world, result, path), f"{args.out}.png")
+    if out:
+        _write_plot(lambda path: xp.plot_run(setting, args.method, world, result, path), out)
     return 0
 
 
@@ -479,8 +561,7 @@ def _ir_setting(args: argparse.Namespace):
 
 def _cmd_ir(args: argparse.Namespace) -> int:
     setting = _ir_setting(args)
-    if args.out:
-        _check_out_files("--out", args.out, [f"{args.out}.png"])
+    out = _out_file(args, old_adds_png=True)
     import jax
     import numpy as np
 
@@ -500,8 +581,8 @@ def _cmd_ir(args: argparse.Namespace) -> int:
         f"{int((np.asarray(drive.inputs.record) >= 0).sum())} steps"
     )
     print(xp.format_errors([("IR MCL", drive.mcl), ("odometry", drive.dead)]))
-    if args.out:
-        _write_plot(lambda path: xp.plot_drive(drive, path), f"{args.out}.png")
+    if out:
+        _write_plot(lambda path: xp.plot_drive(drive, path), out)
     return 0
 
 
@@ -528,8 +609,7 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
         )
     if args.calibrate:
         return _uhf_calibrate(args, setting, names)
-    if args.out:
-        _check_out_files("--out", args.out, [f"{args.out}-{name}.png" for name in names])
+    pngs = _out_folder(args, [f"{name}.png" for name in names])
     print(
         f"jaxnav {__version__} uhf-real: [A] Alg. 6 in 2D on the AdaRF reads ({adarf.data_dir(args.data)}), "
         f"{setting.num_particles} particles, {setting.reads_per_channel} read(s) per channel and point, "
@@ -541,9 +621,8 @@ def _cmd_uhf_real(args: argparse.Namespace) -> int:
         res = xp.localize(name, weightings, setting, seeds=args.seeds, seed=args.seed, root=args.data)
         results.append(res)
         print(xp.format_results(res), flush=True)
-    if args.out:
-        for name, res in zip(names, results):
-            _write_plot(lambda path, res=res: xp.plot_results(res, path), f"{args.out}-{name}.png")
+    for png, res in zip(pngs, results):
+        _write_plot(lambda path, res=res: xp.plot_results(res, path), png)
     return 0
 
 
@@ -634,9 +713,26 @@ _DOCS = (
 )
 
 _DATA = (
-    "The data are read from the folder --data names, else $JAXNAV_DATA, else ../shared/data (from the\n"
-    "current folder or the repository's): a folder holding {folder}/, downloaded from\n{source}."
+    "The data are read from the folder --data names, else $JAXNAV_DATA, else ../shared/data relative to\n"
+    "the repository (a source checkout; never to the current folder): a folder holding {folder}/,\n"
+    "downloaded from {source}."
 )
+
+_DATA_HELP = "data folder (default $JAXNAV_DATA, else ../shared/data relative to the repository)"
+
+_FIGURE_HELP = "figure file; its extension (.png, .pdf, .svg, …) sets the format ('' for none; default {default})"
+_OLD_FIGURE_HELP = "; a name without a figure extension gets .png, as before (deprecated)"
+_FOLDER_HELP = "folder for {what}, created if missing ('' for none; default {default})"
+_OLD_FOLDER_HELP = (
+    "; a name that is no folder and does not end in / is, as before, a prefix of the file names (deprecated)"
+)
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Descriptions and examples as written; option help wrapped at spaces only (``jaxnav-mrclam/`` whole)."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        return textwrap.wrap(self._whitespace_matcher.sub(" ", text).strip(), width, break_on_hyphens=False)
 
 
 def _examples(*pairs: tuple[str, str]) -> str:
@@ -651,7 +747,7 @@ def _command(sub, name: str, help: str, description: str, examples: str) -> argp
         help=help,
         description=description,
         epilog=examples,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=_HelpFormatter,
     )
 
 
@@ -678,7 +774,9 @@ pip install 'jaxnav[plot]').""",
     demo.add_argument("--steps", type=_positive_int, default=120, help="time steps of 0.25 s (default 120, one lap)")
     demo.add_argument("--particles", type=_positive_int, default=1000, help="number of particles (default 1000)")
     demo.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
-    demo.add_argument("--out", default="jaxnav-demo.png", help="PNG to write ('' for none; default jaxnav-demo.png)")
+    demo.add_argument(
+        "--out", metavar="FILE", default="jaxnav-demo.png", help=_FIGURE_HELP.format(default="jaxnav-demo.png")
+    )
     demo.set_defaults(func=_cmd_demo)
 
 
@@ -717,7 +815,7 @@ Dead reckoning, EKF and UKF localization, MCL with the known map, EKF-SLAM, Fast
 UTIAS MRCLAM dataset 7 (Leung et al., IJRR 30(8), 2011): the odometry of five robots and their
 range-bearing measurements of barcoded landmarks, with a Vicon ground truth. Prints, for each
 robot and filter, the position and heading RMSE, the ATE, the landmark RMSE of the SLAM filters
-and the time taken, and draws a PNG per robot (needs matplotlib).
+and the time taken, and draws a PNG per robot into the folder --out (needs matplotlib).
 
 {_DATA.format(folder="utias-mrclam-dataset7", source="http://asrl.utias.utoronto.ca/datasets/mrclam/")}""",
         _examples(
@@ -726,8 +824,8 @@ and the time taken, and draws a PNG per robot (needs matplotlib).
                 "jaxnav mrclam --robots 1 --algorithms ekf,mcl --duration 60 --out ''",
             ),
             (
-                "robot 2: EKF, EKF-SLAM and FastSLAM 2.0 over the first 2 minutes; writes jaxnav-mrclam-robot2.png",
-                "jaxnav mrclam --robots 2 --algorithms ekf,ekf_slam,fastslam2 --duration 120",
+                "robot 2: EKF, EKF-SLAM and FastSLAM 2.0 over the first 2 minutes; writes mrclam/robot2.png",
+                "jaxnav mrclam --robots 2 --algorithms ekf,ekf_slam,fastslam2 --duration 120 --out mrclam/",
             ),
             (
                 "noise learned on robot 1's first 300 s by MCL's likelihood; EKF, UKF, MCL on robots 1-3 with both",
@@ -748,8 +846,13 @@ and the time taken, and draws a PNG per robot (needs matplotlib).
         help="seconds from the start of each log (default: all 900 s)",
     )
     mr.add_argument("--seed", type=_seed, default=0, help="seed of the particle filters (default 0)")
-    mr.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
-    mr.add_argument("--out", default="jaxnav-mrclam", help="prefix of the PNGs ('' for none; default jaxnav-mrclam)")
+    mr.add_argument("--data", default=None, help=_DATA_HELP)
+    mr.add_argument(
+        "--out",
+        metavar="DIR",
+        default="jaxnav-mrclam/",
+        help=_FOLDER_HELP.format(what="the PNGs, robotN.png", default="jaxnav-mrclam/") + _OLD_FOLDER_HELP,
+    )
     mr.add_argument(
         "--calibrate",
         choices=("mcl", "ekf"),
@@ -802,8 +905,10 @@ and draws a PNG (needs matplotlib).
     )
     uw.add_argument("--runs", type=_positive_int, default=10, help="seeded runs of each particle filter (default 10)")
     uw.add_argument("--seed", type=_seed, default=0, help="seed of the particle filters (default 0)")
-    uw.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
-    uw.add_argument("--out", default="jaxnav-uwb.png", help="PNG to write ('' for none; default jaxnav-uwb.png)")
+    uw.add_argument("--data", default=None, help=_DATA_HELP)
+    uw.add_argument(
+        "--out", metavar="FILE", default="jaxnav-uwb.png", help=_FIGURE_HELP.format(default="jaxnav-uwb.png")
+    )
     uw.add_argument(
         "--calibrate",
         choices=("ekf", "mcl"),
@@ -870,7 +975,10 @@ as [W]'s tables do, and draws the run into a PNG (needs matplotlib). 'jaxnav exp
     hf.add_argument("--lag", type=_positive_int, default=20, help="PS-SLAM lag L (default 20)")
     hf.add_argument("--seed", type=_seed, default=0, help="seed of the world and the filter (default 0)")
     hf.add_argument(
-        "--out", default="jaxnav-hf-slam", help="PNG path without .png ('' for none; default jaxnav-hf-slam)"
+        "--out",
+        metavar="FILE",
+        default="jaxnav-hf-slam.png",
+        help=_FIGURE_HELP.format(default="jaxnav-hf-slam.png") + _OLD_FIGURE_HELP,
     )
     hf.set_defaults(func=_cmd_hf_slam)
 
@@ -927,7 +1035,12 @@ runs.""",
     )
     irp.add_argument("--particles", type=_positive_int, default=1000, help="particles (default 1000, as [W])")
     irp.add_argument("--seed", type=_seed, default=0, help="seed (default 0)")
-    irp.add_argument("--out", default="jaxnav-ir", help="PNG path without .png ('' for none; default jaxnav-ir)")
+    irp.add_argument(
+        "--out",
+        metavar="FILE",
+        default="jaxnav-ir.png",
+        help=_FIGURE_HELP.format(default="jaxnav-ir.png") + _OLD_FIGURE_HELP,
+    )
     irp.set_defaults(func=_cmd_ir)
 
 
@@ -944,7 +1057,7 @@ points. A particle filter over a tag's 2D position (its height is known) weighs 
 RSSI, by phase or by both (--weightings); the RSSI model's (k, θ) are fitted on another of the
 three tags, whose position is taken as known ([A] §4.3.1). Prints each tag's final error against
 the ground truth beside that of a uniform guess, and draws the estimates into a PNG per experiment
-(needs matplotlib).
+in the folder --out (needs matplotlib).
 
 {_DATA.format(folder="adarf-uhf-rfid-phase", source="https://github.com/dapowan/AdaRF")}""",
         _examples(
@@ -953,7 +1066,7 @@ the ground truth beside that of a uniform guess, and draws the estimates into a 
                 "jaxnav uhf-real --weightings phase --particles 2000 --out ''",
             ),
             (
-                "every weighting over 3 seeds; writes jaxnav-uhf-real-181218-01-50-8.png",
+                "every weighting over 3 seeds; writes jaxnav-uhf-real/181218-01-50-8.png",
                 "jaxnav uhf-real --seeds 3",
             ),
             (
@@ -982,8 +1095,13 @@ the ground truth beside that of a uniform guess, and draws the estimates into a 
     )
     ur.add_argument("--seeds", type=_positive_int, default=1, help="seeded runs per tag and weighting (default 1)")
     ur.add_argument("--seed", type=_seed, default=0, help="first seed (default 0)")
-    ur.add_argument("--data", default=None, help="data folder (default $JAXNAV_DATA or ../shared/data)")
-    ur.add_argument("--out", default="jaxnav-uhf-real", help="PNG prefix ('' for none; default jaxnav-uhf-real)")
+    ur.add_argument("--data", default=None, help=_DATA_HELP)
+    ur.add_argument(
+        "--out",
+        metavar="DIR",
+        default="jaxnav-uhf-real/",
+        help=_FOLDER_HELP.format(what="the PNGs, EXPERIMENT.png", default="jaxnav-uhf-real/") + _OLD_FOLDER_HELP,
+    )
     ur.add_argument(
         "--calibrate",
         action="store_true",
@@ -1025,7 +1143,13 @@ actions:
     xp.add_argument("action", nargs="?", choices=("list", "run"), help="list the experiments, or run one")
     xp.add_argument("name", nargs="?", metavar="NAME", help="experiment name (see 'list')")
     xp.add_argument("--runs", type=_positive_int, default=20, help="seeded runs per setting (default 20)")
-    xp.add_argument("--out", default="jaxnav-experiments", help="output directory for JSON, Markdown and PNG")
+    xp.add_argument(
+        "--out",
+        metavar="DIR",
+        default="jaxnav-experiments/",
+        help="folder for NAME.json, NAME.md, NAME.png and NAME.runs.json, created if missing "
+        "(default jaxnav-experiments/)",
+    )
     xp.add_argument("--seed", type=_seed, default=0, help="master seed (default 0)")
     xp.add_argument("--chunk", type=_positive_int, default=25, help="runs per vmapped call (bounds memory; default 25)")
     xp.add_argument(
@@ -1079,7 +1203,7 @@ def build_parser() -> argparse.ArgumentParser:
             ),
         )
         + f"\n\n'jaxnav COMMAND --help' tells what a command does, its options and examples.\n{_DOCS}",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=_HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"jaxnav {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

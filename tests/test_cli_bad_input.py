@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import gzip
 import os
+import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -40,6 +42,7 @@ REFUSED = [
     (["demo", "--out", "{file}/x.png"], r"--out .*is a file, not a folder"),
     (["demo", "--out", "{nowhere}/x.png"], r"--out .*does not exist"),
     (["demo", "--out", "{ro}/x.png"], r"--out .*cannot write in"),
+    (["demo", "--out", "{dir}/paths.txt"], r"--out .*paths\.txt': \.txt is not a figure format; end the name in one"),
     # mrclam
     (["mrclam", "--robots", "7"], r"--robots must be a comma-separated list of robots 1-5"),
     (["mrclam", "--robots", "one,two"], r"--robots must be a comma-separated list"),
@@ -55,6 +58,13 @@ REFUSED = [
     (["mrclam", "--duration", "inf"], r"argument --duration: must be a finite number > 0, got inf"),
     (["mrclam", "--seed", "x"], r"argument --seed: must be an integer"),
     (["mrclam", "--out", "{file}/run"], r"--out .*is a file, not a folder"),
+    # --out names a folder: one ending in / or one that exists; any other name is the deprecated prefix
+    (["mrclam", "--out", "{file}/"], r"--out '.*a-file/': is a file, not a folder$"),
+    (["mrclam", "--out", "{file}/run/"], r"--out .*a-file is a file, not a folder"),
+    (["mrclam", "--out", "{out-dir}"], r"--out .*out-dir/robot1\.png is a folder, not a file"),
+    (["mrclam", "--robots", "2", "--out", "{out-dir}/"], r"--out .*out-dir/robot2\.png is a folder, not a file"),
+    (["mrclam", "--out", "{ro}/new/"], r"--out .*cannot write in"),
+    (["mrclam", "--out", "{ro}/prefix"], r"--out .*cannot write in"),
     (
         ["mrclam", "--data", "{nowhere}"],
         r"UTIAS MRCLAM Dataset 7 not found at .*: pass --data <folder holding utias-mrclam-dataset7/> "
@@ -105,6 +115,8 @@ REFUSED = [
     (["ir", "--layout", "grid"], r"argument --layout: invalid choice"),
     (["ir", "--drive", "fly"], r"argument --drive: invalid choice"),
     (["ir", "--out", "{file}/x"], r"--out .*is a file, not a folder"),
+    (["ir", "--out", "{png-dir}"], r"--out .*plot\.png is a folder, not a file"),  # the old form: one line
+    (["ir", "--out", "{png-dir}.png"], r"--out .*plot\.png is a folder, not a file"),
     # uhf-real
     (["uhf-real", "--particles", "0"], r"argument --particles: must be a positive integer"),
     (["uhf-real", "--particles", BIG], r"GiB of memory.*--particles \(" + BIG),
@@ -130,6 +142,12 @@ REFUSED = [
         r"--experiment: unknown experiment 'nope'; .* holds x ",
     ),
     (["uhf-real", "--data", "{adarf}", "--experiment", "x", "--out", "{file}/u"], r"--out .*is a file, not a folder"),
+    (["uhf-real", "--data", "{adarf}", "--experiment", "x", "--out", "{file}/u/"], r"--out .*is a file, not a folder"),
+    (["uhf-real", "--data", "{adarf}", "--experiment", "x", "--out", "{out-dir}"], r"out-dir/x\.png is a folder, not"),
+    # uwb
+    (["uwb", "--out", "{dir}"], r"--out .*a-dir is a folder, not a file"),
+    (["uwb", "--out", "{nowhere}/uwb.png"], r"--out .*does not exist"),
+    (["uwb", "--out", "{dir}/uwb.docx"], r"--out .*\.docx is not a figure format"),
     # experiments
     (["experiments", "run"], r"name an experiment \(see 'jaxnav experiments list'\)"),
     (["experiments", "run", "table-9.9"], r"unknown experiment 'table-9\.9'; choose from"),
@@ -218,6 +236,8 @@ def places(tmp_path_factory):
     (base / "a-file").write_text("not a folder\n")
     (base / "a-dir").mkdir()
     (base / "plot.png").mkdir()
+    for name in ("robot1.png", "robot2.png", "x.png"):  # folders where --out DIR would write files
+        (base / "out-dir" / name).mkdir(parents=True)
     good = _adarf_rows(3)  # row 5 is on line 7 (the header is line 1)
     short, nan = list(good), list(good)
     short[5] = ",".join(good[5].split(",")[:4])
@@ -230,6 +250,7 @@ def places(tmp_path_factory):
         "nowhere": str(base / "no-such-folder"),
         "ro": _unwritable(base),
         "png-dir": str(base / "plot"),
+        "out-dir": str(base / "out-dir"),
         "adarf": str(_adarf(base / "adarf-ok")),
         "adarf-truncated": str(_adarf(base / "adarf-truncated", point3=_adarf_file(good)[:120])),
         "adarf-not-gzip": str(_adarf(base / "adarf-not-gzip", point3=b"epc,frequency\n1,2\n")),
@@ -303,7 +324,7 @@ def nothing_computed(monkeypatch):
 
 
 def _command(argv):
-    return argv[0] if argv and argv[0] in {"demo", "mrclam", "hf-slam", "ir", "uhf-real", "experiments"} else ""
+    return argv[0] if argv and argv[0] in {"demo", "mrclam", "uwb", "hf-slam", "ir", "uhf-real", "experiments"} else ""
 
 
 @pytest.mark.parametrize("argv, pattern", REFUSED, ids=[" ".join(a)[:60] for a, _ in REFUSED])
@@ -382,6 +403,96 @@ def test_unexpected_errors_are_one_line_with_their_type(monkeypatch, capsys):
     monkeypatch.setattr(demo, "run_demo", broken)
     code, _, err = _main(["demo", "--out", ""], capsys)
     _assert_refused(code, err, r"IndexError: list index out of range second line$", "demo")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+@pytest.mark.parametrize(
+    "argv, out, pipe",
+    [
+        (["mrclam", "--robots", "1,2"], "{tmp}/", "robot2.png"),  # the folder
+        (["mrclam", "--robots", "1,2"], "{tmp}", "robot2.png"),  # an existing folder, without /
+        (["mrclam", "--robots", "1"], "{tmp}/old", "old-robot1.png"),  # the deprecated prefix
+        (["uhf-real", "--experiment", "x"], "{tmp}/", "x.png"),
+        (["uhf-real", "--experiment", "x"], "{tmp}/old", "old-x.png"),
+        (["hf-slam"], "{tmp}/run", "run.png"),  # the deprecated name without .png
+        (["hf-slam"], "{tmp}/run.png", "run.png"),
+        (["ir"], "{tmp}/ir.svg", "ir.svg"),
+    ],
+    ids=["mrclam-dir/", "mrclam-dir", "mrclam-prefix", "uhf-dir/", "uhf-prefix", "hf-old", "hf", "ir"],
+)
+def test_a_named_pipe_where_out_would_write_is_refused_at_once(
+    argv, out, pipe, places, tmp_path, capsys, nothing_computed
+):
+    """Whatever the form of ``--out``, a named pipe at a file it would write is refused by name, in one line
+    and with the same message (a write would block on it), before anything is computed or warned."""
+    path = tmp_path / pipe
+    os.mkfifo(path)
+    value = out.format(tmp=tmp_path)
+    code, _, err = _main(
+        [*argv, "--data", places["adarf"], "--out", value] if argv[0] == "uhf-real" else [*argv, "--out", value], capsys
+    )
+    _assert_refused(
+        code,
+        err,
+        re.escape(
+            f"--out {value!r}: {path} is a named pipe (FIFO), not a regular file; remove it or choose another --out"
+        )
+        + "$",
+        argv[0],
+    )
+    assert sorted(os.listdir(tmp_path)) == [pipe]
+
+
+# ---------------------------------------------------------------------------
+# the data folder: --data (root=), else $JAXNAV_DATA, else ../shared/data relative to the repository
+# (the user's data folder for an installed copy), never relative to the current folder
+
+
+def test_the_data_folder_is_not_found_from_the_current_folder(tmp_path, monkeypatch, capsys, nothing_computed):
+    """A ``../shared/data`` beside the current folder is not looked at: the default is an absolute folder
+    fixed by the repository (the user's data folder for an installed copy); ``root=`` and ``$JAXNAV_DATA``
+    still name one."""
+    from jaxnav.io import _data
+    from jaxnav.io import mrclam as mrclam_io
+
+    _mrclam(tmp_path / "shared" / "data")  # what ../shared/data from tmp_path/work would hold
+    (tmp_path / "work").mkdir()
+    monkeypatch.chdir(tmp_path / "work")
+    monkeypatch.delenv(_data.ENV_VAR, raising=False)
+    repo = pathlib.Path(__file__).resolve().parents[1]
+    default = (repo / ".." / "shared" / "data").resolve()
+    assert _data.default_data_dir() == default and default.is_absolute()
+    assert _data.data_candidates(None) == [default]
+    try:
+        found = mrclam_io.data_dir()
+    except FileNotFoundError as err:
+        assert str(tmp_path) not in str(err)
+    else:
+        assert tmp_path not in found.parents
+
+    # an installed copy: the user's data folder, from $XDG_DATA_HOME when it is absolute, never the cwd
+    monkeypatch.setattr(_data, "_source_checkout", lambda: None)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    assert _data.data_candidates(None) == [tmp_path / "xdg" / "jaxnav"]
+    monkeypatch.setenv("XDG_DATA_HOME", "relative/data")  # a relative value is ignored, as XDG asks
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert _data.data_candidates(None) == [tmp_path / "home" / ".local" / "share" / "jaxnav"]
+    code, _, err = _main(["mrclam", "--robots", "1", "--out", ""], capsys)
+    _assert_refused(
+        code,
+        err,
+        r"UTIAS MRCLAM Dataset 7 not found at \S+/home/\.local/share/jaxnav/utias-mrclam-dataset7: "
+        r"pass --data <folder holding utias-mrclam-dataset7/> or set the environment variable JAXNAV_DATA",
+        "mrclam",
+    )
+    with pytest.raises(FileNotFoundError, match=r"\.local/share/jaxnav.*pass root="):
+        mrclam_io.data_dir()
+
+    # root= and $JAXNAV_DATA, relative to the current folder as any path a user gives
+    expected = (tmp_path / "shared" / "data" / mrclam_io.DATASET).resolve()
+    assert mrclam_io.data_dir("../shared/data") == expected
+    monkeypatch.setenv(_data.ENV_VAR, str(tmp_path / "shared" / "data"))
+    assert mrclam_io.data_dir() == expected
 
 
 def test_the_ir_code_range_matches_the_model():

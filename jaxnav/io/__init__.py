@@ -6,7 +6,8 @@
   channels at 50 antenna positions, three tags with known positions), as
   :class:`~jaxnav.models.uhf_reads.UHFReads` filter steps.
 
-Both find their dataset in ``root``, the environment variable ``JAXNAV_DATA`` or ``../shared/data``, and
+Both find their dataset in ``root``, the environment variable ``JAXNAV_DATA`` or ``../shared/data``
+relative to the repository root of a source checkout (never relative to the current directory), and
 raise :class:`DataNotFoundError` (a ``FileNotFoundError``) naming the folders tried and the download page
 when it is in none of them.
 """

@@ -2,10 +2,11 @@
 
 The datasets are never copied into the repository. A loader finds its folder
 ``<data>/<dataset>`` with ``<data>`` taken, in this order, from an explicit
-``root``, the environment variable :data:`ENV_VAR`, ``../shared/data``
-relative to the current directory, and ``../shared/data`` relative to the
-repository root (only when jaxnav runs from a source checkout, not from an
-installed copy).
+``root``, the environment variable :data:`ENV_VAR`, and the default data
+folder :func:`default_data_dir`, an absolute path that never depends on the
+current directory: ``../shared/data`` relative to the repository root when
+jaxnav runs from a source checkout, else the user's data folder
+``$XDG_DATA_HOME/jaxnav`` (``~/.local/share/jaxnav`` when the variable is unset).
 """
 
 from __future__ import annotations
@@ -50,21 +51,27 @@ def _source_checkout() -> Path | None:
     return _REPO_ROOT
 
 
+def default_data_dir() -> Path:
+    """The default data folder, absolute and independent of the current directory: ``../shared/data``
+    relative to the repository root when jaxnav runs from a source checkout, else the user's data
+    folder ``$XDG_DATA_HOME/jaxnav`` (``~/.local/share/jaxnav`` when the variable is unset or relative)."""
+    checkout = _source_checkout()
+    if checkout is not None:
+        return (checkout / _DEFAULT_RELATIVE).resolve()
+    xdg = os.environ.get("XDG_DATA_HOME", "")
+    base = Path(xdg) if os.path.isabs(xdg) else Path.home() / ".local" / "share"
+    return base / "jaxnav"
+
+
 def data_candidates(root: str | os.PathLike | None) -> list[Path]:
-    """The data folders to try, in order and without repeats (see the module docstring)."""
+    """The data folders to try, in order (see the module docstring): ``[root]`` if given, else
+    ``[$JAXNAV_DATA]`` if set, else ``[default_data_dir()]``."""
     if root is not None:
         return [Path(root)]
     env = os.environ.get(ENV_VAR)
     if env:
         return [Path(env)]
-    checkout = _source_checkout()
-    bases = [Path.cwd()] + ([checkout] if checkout is not None else [])
-    out: list[Path] = []
-    for base in bases:
-        folder = (base / _DEFAULT_RELATIVE).resolve()
-        if folder not in out:
-            out.append(folder)
-    return out
+    return [default_data_dir()]
 
 
 def find_dataset(

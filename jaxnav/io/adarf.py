@@ -182,9 +182,9 @@ def _is_dataset(folder: Path) -> bool:
 def data_dir(root: str | os.PathLike | None = None) -> Path:
     """The dataset folder ``<data>/adarf-uhf-rfid-phase``.
 
-    ``<data>`` is ``root`` if given, else ``$JAXNAV_DATA`` if set, else ``../shared/data``
-    relative to the current directory, else relative to the repository root (when jaxnav runs
-    from a source checkout). ``root`` (or ``$JAXNAV_DATA``) may also name the dataset folder itself.
+    ``<data>`` is ``root`` if given, else ``$JAXNAV_DATA`` if set, else ``../shared/data`` relative
+    to the repository root when jaxnav runs from a source checkout (never relative to the current
+    directory). ``root`` (or ``$JAXNAV_DATA``) may also name the dataset folder itself.
 
     Raises:
         FileNotFoundError: naming the paths tried and the environment variable.

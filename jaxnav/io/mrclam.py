@@ -259,9 +259,9 @@ def data_dir(root: str | os.PathLike | None = None) -> Path:
     """The dataset folder ``<data>/utias-mrclam-dataset7``.
 
     ``<data>`` is ``root`` if given, else ``$JAXNAV_DATA`` if set, else
-    ``../shared/data`` relative to the current directory, else relative to
-    the repository root. ``root`` (or ``$JAXNAV_DATA``) may also name the
-    dataset folder itself.
+    ``../shared/data`` relative to the repository root when jaxnav runs from
+    a source checkout (never relative to the current directory). ``root``
+    (or ``$JAXNAV_DATA``) may also name the dataset folder itself.
 
     Raises:
         FileNotFoundError: naming the paths tried and the environment variable.

@@ -96,8 +96,8 @@ class UWBSequence(NamedTuple):
 
 def data_dir(root: str | os.PathLike | None = None) -> Path:
     """The dataset folder ``<data>/tuc-labyrinth-uwb`` (``root``, else ``$JAXNAV_DATA``, else
-    ``../shared/data``; :mod:`jaxnav.io`). Raises :class:`~jaxnav.io.DataNotFoundError` naming the
-    paths tried."""
+    ``../shared/data`` relative to the repository root of a source checkout, never to the current
+    directory; :mod:`jaxnav.io`). Raises :class:`~jaxnav.io.DataNotFoundError` naming the paths tried."""
     return find_dataset(
         root,
         DATASET,

@@ -262,7 +262,8 @@ def run_robot(
     Args:
         duration, t_start: the segment (s; default the whole 900 s log).
         seed: PRNG seed of the particle filters.
-        root: data folder (default ``$JAXNAV_DATA`` or ``../shared/data``).
+        root: data folder (default ``$JAXNAV_DATA``, else ``../shared/data`` relative to the repository;
+            :func:`jaxnav.io.mrclam.data_dir`).
     """
     for name in algorithms:
         if name not in _RUNNERS:

@@ -2,7 +2,8 @@
 
 ``python docs/check_links.py docs/_build/html`` prints each broken link with the page it is on and
 exits 1 if there is any. External links (``http:``, ``https:``, ``mailto:``) are not followed: the
-build runs without a network.
+build runs without a network. A script or a stylesheet loaded from the network (MathJax from a CDN,
+say) is reported too: the site must read the same offline, its maths rendered.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ class _Page(HTMLParser):
         super().__init__()
         self.ids: set[str] = set()
         self.links: list[str] = []
+        self.remote_assets: list[str] = []  # scripts and stylesheets a reader's browser would fetch
 
     def handle_starttag(self, tag, attrs):
         a = dict(attrs)
@@ -29,6 +31,15 @@ class _Page(HTMLParser):
         target = a.get("href") if tag in ("a", "link") else a.get("src") if tag in ("img", "script") else None
         if target:
             self.links.append(target)
+        asset = (
+            a.get("src")
+            if tag == "script"
+            else a.get("href")
+            if tag == "link" and a.get("rel") == "stylesheet"
+            else None
+        )
+        if asset and (urlparse(asset).scheme in ("http", "https") or asset.startswith("//")):
+            self.remote_assets.append(asset)
 
 
 def _parse(path: str) -> _Page:
@@ -39,7 +50,8 @@ def _parse(path: str) -> _Page:
 
 
 def broken_links(root: str) -> list[str]:
-    """``"page: link"`` for every internal link under ``root`` whose file or fragment is missing."""
+    """``"page: link"`` for every internal link under ``root`` whose file or fragment is missing, and for
+    every script or stylesheet a page loads from the network."""
     pages: dict[str, _Page] = {}
     for folder, _, files in os.walk(root):
         for name in files:
@@ -48,6 +60,7 @@ def broken_links(root: str) -> list[str]:
                 pages[path] = _parse(path)
     bad = []
     for path, page in sorted(pages.items()):
+        bad += [f"{os.path.relpath(path, root)}: {url} (loaded from the network)" for url in page.remote_assets]
         for link in page.links:
             if urlparse(link).scheme or link.startswith("//"):
                 continue  # external
@@ -70,7 +83,7 @@ def main(argv: list[str]) -> int:
     bad = broken_links(root)
     for line in bad:
         print(line)
-    print(f"{len(bad)} broken internal link(s) under {root}")
+    print(f"{len(bad)} broken internal link(s) or remote asset(s) under {root}")
     return 1 if bad else 0
 
 

@@ -34,6 +34,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax copied into the site: its maths render without a network
     "myst_nb",
     "sphinx_copybutton",
 ]
@@ -137,11 +138,33 @@ def _short_sensor_defaults(app, what, name, obj, options, signature, return_anno
     parser cannot read."""
     if signature:
         signature = _SENSOR_DEFAULT.sub(r"ParticleSensor('\1')", signature)
+    return _public_array_signature(app, what, name, obj, options, signature, return_annotation)
+
+
+# ``jax.Array`` is defined in a private module, and autodoc names a class by its module and qualified name:
+# ``jax.jaxlib._jax.Array``. Users write, and the docs show, the public name.
+_PRIVATE_ARRAY = re.compile(r"\b(?:jax\.)?jaxlib\._jax\.Array\b")
+
+
+def _public_array_signature(app, what, name, obj, options, signature, return_annotation):
+    """Signatures and return annotations show ``jax.Array``, not ``jax.jaxlib._jax.Array``. Called by
+    :func:`_short_sensor_defaults`: Sphinx takes the first answer of the ``autodoc-process-signature``
+    handlers, so there is one."""
+    if signature:
+        signature = _PRIVATE_ARRAY.sub("jax.Array", signature)
+    if return_annotation:
+        return_annotation = _PRIVATE_ARRAY.sub("jax.Array", return_annotation)
     return signature, return_annotation
+
+
+def _public_array_docstring(app, what, name, obj, options, lines):
+    """The types napoleon writes for a class's attributes (``:type:``) show ``jax.Array`` too."""
+    lines[:] = [_PRIVATE_ARRAY.sub("jax.Array", line) for line in lines]
 
 
 def setup(app):
     app.connect("autodoc-process-signature", _short_sensor_defaults)
+    app.connect("autodoc-process-docstring", _public_array_docstring, priority=600)  # after napoleon (500)
     app.connect("builder-inited", lambda app: generate.main(HERE, ROOT))
     app.connect("autodoc-skip-member", _skip_namedtuple_fields)
     app.connect("builder-inited", _resolve_namedtuple_annotations)

@@ -1,7 +1,9 @@
 """Write the generated pages of the documentation into ``docs/_generated``.
 
 * ``api/``: one page per public module of :mod:`jaxnav` (autodoc), found by walking the package, so a
-  new module gets its page without editing the docs;
+  new module gets its page without editing the docs; one page per group of modules (:data:`API_GROUPS`:
+  core, models, simulators, …, and the internals last), each module in the group of its subpackage; and
+  the index of the groups;
 * ``reproductions/``: one page per registered experiment, its table and figure made from
   ``benchmarks/results/experiments/NAME.json`` by the experiment's own ``markdown`` and ``plot``,
   with a count of where the thesis value falls against our 95 % interval, and the hand-written
@@ -56,50 +58,185 @@ def public_modules() -> list[str]:
     return sorted(names)
 
 
+def _defines(module_name: str, member: str) -> bool:
+    """Whether the source of ``module_name`` assigns ``member`` at its top level (``X = Y``, ``X: T = Y``)."""
+    import ast
+    import inspect
+
+    try:
+        tree = ast.parse(inspect.getsource(importlib.import_module(module_name)))
+    except (OSError, TypeError):
+        return False
+    for node in tree.body:
+        targets = (
+            node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        )
+        if any(isinstance(t, ast.Name) and t.id == member for t in targets):
+            return True
+    return False
+
+
 def documented_elsewhere(name: str, modules: set[str]) -> list[str]:
-    """The names ``name`` exports (``__all__``) that another public module defines, and documents."""
+    """The names ``name`` exports (``__all__``) that another public module defines, and documents.
+
+    A class or function is at home in its ``__module__``; an alias (``KalmanParams = LandmarkMapParams``,
+    re-exported by another filter) in the public module that assigns it under that name and exports it.
+    """
     module = importlib.import_module(name)
     out = []
     for member in getattr(module, "__all__", ()):
         obj = getattr(module, member, None)
-        home = getattr(obj, "__module__", None) if callable(obj) else None  # a constant's is its type's
-        if home != name and home in modules and getattr(importlib.import_module(home), member, None) is obj:
+        if home_of(name, member, obj, modules) != name:
             out.append(member)
     return out
+
+
+def home_of(name: str, member: str, obj, modules: set[str]) -> str:
+    """The public module that documents ``member`` (the object ``obj``) of module ``name``: ``name`` itself
+    unless another public module defines it."""
+    home = getattr(obj, "__module__", None) if callable(obj) else None  # a constant's is its type's
+    if home != name and home in modules and getattr(importlib.import_module(home), member, None) is obj:
+        return home
+    if isinstance(obj, type) and obj.__name__ != member and not _defines(name, member):  # an imported alias
+        for other in sorted(modules - {name}):
+            mod = importlib.import_module(other)
+            if vars(mod).get(member) is obj and member in getattr(mod, "__all__", ()) and _defines(other, member):
+                return other
+    return name
+
+
+# The groups of the API reference, in order: (key, title, what it holds). A module belongs to the group of
+# the subpackage it is in (``jaxnav.slam.fastslam``: ``slam``), a module directly under ``jaxnav`` to
+# ``tools``; a new subpackage with no group here gets a group of its own, so that every public module
+# has its page and its place in the index without editing the docs. ``jaxnav`` itself is under ``core``.
+API_GROUPS = (
+    (
+        "core",
+        "Core",
+        "The package, and the engine every filter is built on: log-weights, resampling, the filter "
+        "skeleton, Kalman primitives, random numbers, batch Monte Carlo, sharding.",
+    ),
+    ("models", "Models", "Motion models and sensor models: landmarks, range-only beacons, HF- and UHF-RFID, IR."),
+    ("sim", "Simulators", "Simulated worlds and hardware that produce the data the filters read."),
+    (
+        "localization",
+        "Localization",
+        "Filters that estimate the robot's pose (or a tag's position) with a "
+        "known map: MCL and its variants, EKF, UKF, grid, RFID.",
+    ),
+    (
+        "slam",
+        "SLAM",
+        "Filters that estimate the robot's path and the map together: EKF-SLAM, FastSLAM, PF-SLAM, PS-SLAM.",
+    ),
+    (
+        "experiments",
+        "Experiments",
+        "The reproduction studies and the real-data experiments, and the machinery "
+        "that runs them (registry, sweeps, statistics, reports).",
+    ),
+    ("io", "IO", "Dataset loaders and their conversion to filter steps."),
+    ("tools", "Calibration, metrics and demo", "Fitting parameters to data, scoring estimates, and the demo."),
+)
+
+# Modules the library uses itself and a user does not call; their names may change without notice. They
+# keep their pages (other pages link to their functions) under the group ``internals``, listed last.
+INTERNAL_MODULES = re.compile(
+    r"jaxnav\.(cli|core\.(u64|fastmath|host_checks|integer_cdf)|experiments\.\w+\.(figures|tables))"
+)
+INTERNALS = (
+    "internals",
+    "Internals",
+    "Modules the library uses itself, not meant to be called: the command line's implementation, the exact "
+    "integer arithmetic under resampling, the host-side checks of the filters, and the experiments' "
+    "registrations of tables and figures (run them by name with {mod}`jaxnav.experiments.registry`). Their "
+    "names may change without notice.",
+)
+
+
+def is_internal(name: str) -> bool:
+    """Whether module ``name`` is one of the internals (:data:`INTERNAL_MODULES`)."""
+    return INTERNAL_MODULES.fullmatch(name) is not None
+
+
+def api_group(name: str, modules: list[str] | set[str]) -> str:
+    """The key of the group module ``name`` is listed under (see :data:`API_GROUPS`)."""
+    if is_internal(name):
+        return INTERNALS[0]
+    parts = name.split(".")
+    if len(parts) == 1:
+        return "core"
+    package = ".".join(parts[:2])
+    known = {key for key, *_ in API_GROUPS} - {"tools"}
+    if parts[1] in known or len(parts) > 2 or any(m.startswith(package + ".") for m in modules):
+        return parts[1]  # the subpackage's group: one of API_GROUPS, or a new one
+    return "tools"  # a module directly under jaxnav
+
+
+def api_groups(modules: list[str]) -> list[tuple[str, str, str, list[str]]]:
+    """``(key, title, blurb, modules)`` of every non-empty group, in the order of the index: the groups of
+    :data:`API_GROUPS`, then any subpackage with no group there, then the internals."""
+    members: dict[str, list[str]] = {}
+    for name in modules:
+        members.setdefault(api_group(name, modules), []).append(name)
+    known = [(key, title, blurb) for key, title, blurb in API_GROUPS]
+    new = [(key, f"`jaxnav.{key}`", "") for key in members if key not in {k for k, *_ in API_GROUPS} | {INTERNALS[0]}]
+    return [(key, title, blurb, members[key]) for key, title, blurb in [*known, *new, INTERNALS] if key in members]
+
+
+def short_title(name: str, group: str) -> str:
+    """The module's title in the sidebar, under its group's heading: its name inside the group's package
+    (``mcl`` for ``jaxnav.localization.mcl``), inside ``jaxnav`` for the tools, and for the internals
+    inside ``jaxnav`` or ``jaxnav.experiments`` (``core.u64``, ``hf_slam.figures``). Short, so that the
+    sidebar, which breaks a name too long for it anywhere, need not break it."""
+    if name == f"jaxnav.{group}":
+        return group
+    for prefix in (f"jaxnav.{group}.", "jaxnav.experiments." if group == INTERNALS[0] else "jaxnav.", "jaxnav."):
+        if name.startswith(prefix):
+            return name.removeprefix(prefix)
+    return name
 
 
 def write_api(out: str) -> None:
     modules = public_modules()
     for name in modules:
-        body = f"# `{name}`\n\n```{{eval-rst}}\n.. automodule:: {name}\n   :members:\n"
+        body = f"# `{name}`\n\n"
+        if is_internal(name):
+            body += (
+                "```{note}\nAn internal module: the library uses it itself, and its names may change without "
+                "notice. It is documented for the pages that link to it.\n```\n\n"
+            )
+        body += f"```{{eval-rst}}\n.. automodule:: {name}\n   :members:\n"
         elsewhere = documented_elsewhere(name, set(modules))
         if elsewhere:
             body += f"   :exclude-members: {', '.join(elsewhere)}\n"
         body += "```\n"
         if elsewhere:
+            module = importlib.import_module(name)
             body += (
                 "\nAlso exported here, documented where they are defined: "
-                + ", ".join(
-                    f"{{py:obj}}`~{importlib.import_module(name).__dict__[n].__module__}.{n}`" for n in elsewhere
-                )
+                + ", ".join(f"{{py:obj}}`~{home_of(name, n, module.__dict__[n], set(modules))}.{n}`" for n in elsewhere)
                 + ".\n"
             )
         _write(os.path.join(out, "api", f"{name}.md"), body)
-    groups: dict[str, list[str]] = {}
-    for name in modules:
-        parts = name.split(".")
-        groups.setdefault(".".join(parts[:2]), []).append(name)
+    groups = api_groups(modules)
     lines = [
-        "# API reference\n",
-        "Every public module, with the docstrings of its functions and classes. Names are grouped by "
-        "layer: `core` (weights, resampling, the filter interface), `models` (motion and sensor "
-        "models), `sim` (simulators), `localization` and `slam` (the filters), `io` (dataset "
-        "loaders), `metrics`, `experiments` (the reproduction studies) and the command line.\n",
+        "# API reference\n\n",
+        "Every public module, with the docstrings of its functions and classes, grouped by what it is for. "
+        "The internals, last, are modules the library uses itself.\n",
     ]
-    for group, names in groups.items():
-        lines.append(f"\n## `{group}`\n\n```{{toctree}}\n:maxdepth: 1\n\n")
-        lines += [f"{n}\n" for n in names]
-        lines.append("```\n")
+    for key, title, blurb, names in groups:
+        lines.append(f"\n## [{title}](group-{key}.md)\n\n")
+        if blurb:
+            lines.append(blurb + "\n\n")
+        lines += [f"- [`{n}`]({n}.md)\n" for n in names]
+        page = [f"# {title}\n\n", blurb + "\n\n" if blurb else ""]
+        page += [f"- [`{n}`]({n}.md)\n" for n in names]
+        page.append("\n```{toctree}\n:hidden:\n\n")
+        page += [f"{short_title(n, key)} <{n}>\n" for n in names]
+        page.append("```\n")
+        _write(os.path.join(out, "api", f"group-{key}.md"), "".join(page))
+    lines.append("\n```{toctree}\n:hidden:\n\n" + "".join(f"group-{key}\n" for key, *_ in groups) + "```\n")
     _write(os.path.join(out, "api", "index.md"), "".join(lines))
 
 

@@ -127,7 +127,7 @@ def test_citation_file_names_the_package_version():
         assert thesis in cff
 
 
-def test_link_checker_finds_missing_files_and_fragments(tmp_path):
+def test_link_checker_finds_missing_files_fragments_and_remote_assets(tmp_path):
     check = _load("check_links", DOCS / "check_links.py")
     (tmp_path / "sub").mkdir()
     (tmp_path / "index.html").write_text(
@@ -135,12 +135,20 @@ def test_link_checker_finds_missing_files_and_fragments(tmp_path):
         '<a href="missing.html">bad file</a><a href="https://example.org/x">external</a>'
         '<img src="sub/pic.png?v=3"><a href="#top">self</a><p id="top"></p>'
     )
-    (tmp_path / "sub" / "page.html").write_text('<h1 id="here">x</h1><a href="../index.html">up</a>')
+    (tmp_path / "sub" / "page.html").write_text(
+        '<h1 id="here">x</h1><a href="../index.html">up</a><script src="../mathjax/tex.js"></script>'
+        '<script src="https://cdn.example.org/mathjax/tex.js"></script>'
+        '<link rel="stylesheet" href="//cdn.example.org/x.css"><link rel="canonical" href="https://example.org/">'
+    )
     (tmp_path / "sub" / "pic.png").write_bytes(b"")
+    (tmp_path / "mathjax").mkdir()
+    (tmp_path / "mathjax" / "tex.js").write_text("")
     bad = check.broken_links(str(tmp_path))
     assert sorted(bad) == [
         "index.html: missing.html (no such file)",
         "index.html: sub/page.html#gone (no id 'gone' there)",
+        "sub/page.html: //cdn.example.org/x.css (loaded from the network)",
+        "sub/page.html: https://cdn.example.org/mathjax/tex.js (loaded from the network)",
     ]
 
 

@@ -263,7 +263,12 @@ def fit(
             zoom line search: for a deterministic objective, the EKF's or UKF's; it calls the
             objective several times per step, every step with the key of step 0), an
             ``optax.GradientTransformationExtraArgs`` that searches a line the same way (such as
-            ``optax.lbfgs(memory_size=5)``), or any other ``optax.GradientTransformation``.
+            ``optax.lbfgs(memory_size=5)``), or any other ``optax.GradientTransformation``. The zoom
+            search puts the objective and its gradient three times into the compiled step;
+            ``optax.lbfgs(linesearch=optax.scale_by_backtracking_linesearch(max_backtracking_steps=15))``
+            puts them twice: 8 L-BFGS steps of the EKF over 100 time steps take 8 s with it against
+            20 s with zoom on a 2-core CPU, compilation nearly all of it, at the price of the
+            curvature condition the zoom search enforces.
         learning_rate: Adam's step size, a number or an optax schedule (in the unconstrained values:
             about the relative change of a log-transformed parameter per step); unused otherwise.
         progress: show a progress bar over the steps (tqdm when installed).

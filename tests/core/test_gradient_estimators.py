@@ -91,9 +91,12 @@ def _pf_log_likelihood(theta, key, ys, threshold, gradient, scheme):
     return jnp.sum(increments), jnp.mean(resampled.astype(jnp.float32))
 
 
+# Compiled with XLA's default optimisation, not the suite's compile-fast flags (tests/conftest.py): 200
+# filters of 1000 particles run 3.5 times faster so, and a case takes about 7 s instead of 10.
 _filters = jax.jit(
     jax.vmap(jax.value_and_grad(_pf_log_likelihood, has_aux=True), (None, 0, None, None, None, None)),
     static_argnums=(3, 4, 5),
+    compiler_options={"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True},
 )
 
 

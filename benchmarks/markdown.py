@@ -3,8 +3,9 @@
 ``python -m benchmarks.markdown [benchmarks/results/latest.json]``
 
 One table per workload (per workload and scheme where rows carry a ``scheme``,
-as W1's do): a row per size, a column per implementation and mode (and dtype
-where an implementation was timed in several), median seconds per call or per
+as W1's do): a row per size, a column per implementation and mode (and method
+where rows name one, as S1's and S2's do, and dtype where an implementation was
+timed in several), median seconds per call or per
 step, then jaxnav's best time over the fastest peer's and over the memory
 floor (each jaxnav row over the floor of its own dtype). Rows that were not
 measured are listed after the tables with their reason.
@@ -19,16 +20,22 @@ from benchmarks.harness import annotate_ratios, fmt_time, is_peer, size_label
 
 
 def _table(title: str, wrows: list[dict]) -> list[str]:
-    """One Markdown table: a row per size, a column per implementation and mode (and dtype, where one
-    implementation and mode was timed in several dtypes), then the floor and jaxnav's ratios."""
+    """One Markdown table: a row per size, a column per implementation and mode (and method, where rows
+    name one, and dtype, where one implementation and mode was timed in several dtypes), then the floor
+    and jaxnav's ratios; a column that no row fills is left out."""
     out = []
     dtypes: dict[tuple, set] = {}
     for r in wrows:
         dtypes.setdefault((r["implementation"], r["mode"]), set()).add(r.get("dtype"))
     with_dtype = any(len(d) > 1 for d in dtypes.values())
+    with_method = any(r.get("method") for r in wrows)  # S1, S2: PF-SLAM, PS-SLAM and FastSLAM side by side
 
     def column(r):
-        return (r["implementation"], r["mode"]) + ((r.get("dtype"),) if with_dtype else ())
+        return (
+            (r["implementation"], r["mode"])
+            + ((r.get("method"),) if with_method else ())
+            + ((r.get("dtype"),) if with_dtype else ())
+        )
 
     columns = []
     for r in wrows:
@@ -43,9 +50,7 @@ def _table(title: str, wrows: list[dict]) -> list[str]:
         + [f"{c[0]} ({', '.join(str(v) for v in c[1:] if v)})" for c in columns]
         + ["floor", "jaxnav best / fastest peer", "jaxnav best / floor"]
     )
-    out.append(f"\n**{title}** (median time per call or step)\n")
-    out.append("| " + " | ".join(head) + " |")
-    out.append("|" + "---|" * len(head))
+    body = []
     for size in sizes:
         srows = [r for r in wrows if r["size"] == size]
         cells = [size_label(size)]
@@ -67,11 +72,17 @@ def _table(title: str, wrows: list[dict]) -> list[str]:
         if ours and peers:
             best = min(r["median_s"] for r in ours)
             cells.append(f"{best / min(r['median_s'] for r in peers):.2f}")
-            to_floor = [r["median_s"] / r["floor_s"] for r in ours if r.get("floor_s")]  # each row over its own floor
-            cells.append(f"{min(to_floor):.0f}" if to_floor else "")
         else:
-            cells += ["", ""]
-        out.append("| " + " | ".join(cells) + " |")
+            cells.append("")
+        to_floor = [r["median_s"] / r["floor_s"] for r in ours if r.get("floor_s")]  # each row over its own floor
+        cells.append(f"{min(to_floor):.0f}" if to_floor else "")
+        body.append(cells)
+    # a column no row fills (no peer, no floor: S1, S2) is left out rather than shown empty
+    keep = [j for j in range(len(head)) if j == 0 or any(cells[j] for cells in body)]
+    out.append(f"\n**{title}** (median time per call or step)\n")
+    out.append("| " + " | ".join(head[j] for j in keep) + " |")
+    out.append("|" + "---|" * len(keep))
+    out += ["| " + " | ".join(cells[j] for j in keep) + " |" for cells in body]
     return out
 
 

@@ -105,3 +105,34 @@ def test_plain_forms_rows_trace_without_the_fast_paths_and_restore_them():
     with pytest.raises(RuntimeError), harness.plain_forms():
         raise RuntimeError("a failed row")
     assert not fastmath.use_plain_forms() and not has_loop()
+
+
+def test_markdown_tables_leave_out_the_columns_no_row_fills():
+    """S2 has no peer and no floor: its table shows the sizes and jaxnav's times only, a column per method
+    (PF-SLAM's and PS-SLAM's rows of one size are not one cell); W2, with a numpy peer and a floor, keeps
+    the ratio columns, and jaxnav's time over the floor where no peer ran."""
+    from benchmarks.markdown import tables
+
+    def row(workload, impl, n, median_s, **extra):
+        return dict(workload=workload, implementation=impl, size={"N": n}, mode="per_call", median_s=median_s, **extra)
+
+    payload = {
+        "rows": [
+            row("S2", "jaxnav", 10, 2e-3, method="pf_slam"),
+            row("S2", "jaxnav", 10, 5e-3, method="ps_slam"),
+            row("S2", "jaxnav", 100, 3e-3, method="pf_slam"),
+            row("S2", "jaxnav", 100, 6e-3, method="ps_slam"),
+            row("W2", "jaxnav", 1000, 2e-3, floor_s=1e-5),
+            row("W2", "numpy", 1000, 4e-3, floor_s=1e-5),
+            row("W2", "jaxnav", 10000, 8e-3, floor_s=1e-4),
+        ]
+    }
+    lines = tables(payload).splitlines()
+    s2 = lines[lines.index("| size | jaxnav (per_call, pf_slam) | jaxnav (per_call, ps_slam) |") :]
+    assert s2[1] == "|---|---|---|"
+    assert s2[2:4] == ["| N=10 | 2.00 ms | 5.00 ms |", "| N=100 | 3.00 ms | 6.00 ms |"]
+    w2_head = next(line for line in lines if line.startswith("| size | jaxnav (per_call) | numpy"))
+    assert w2_head.endswith("| floor | jaxnav best / fastest peer | jaxnav best / floor |")
+    w2 = lines[lines.index(w2_head) + 2 : lines.index(w2_head) + 4]
+    assert w2[0].split(" | ")[-2:] == ["0.50", "200 |"]  # 2 ms / 4 ms, 2 ms / 10 µs
+    assert w2[1].split(" | ")[-3:] == ["100.0 µs", "", "80 |"]  # no peer at N=1e4: its floor ratio still shown

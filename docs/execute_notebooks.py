@@ -54,8 +54,8 @@ def data_folders() -> list[pathlib.Path]:
 def dataset_present(folder: str) -> bool:
     """Whether ``<data>/<folder>`` exists in one of the data folders; if so, the kernels are pointed at it.
 
-    The kernels run in a temporary folder and may import an installed jaxnav, which has no default
-    data folder: ``$JAXNAV_DATA`` is set to the data folder found here.
+    The kernels run in a temporary folder and may import an installed jaxnav, whose default data folder
+    is the user's, not this checkout's: ``$JAXNAV_DATA`` is set to the data folder found here.
     """
     base = next((base for base in data_folders() if (base / folder).is_dir()), None)
     if base is not None:

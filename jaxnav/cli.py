@@ -532,6 +532,14 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
             f"{np.nonzero(np.asarray(result.lost))[0].tolist()[:10]}"
         )
     print(xp.format_errors([(args.method, errors)]))
+    shift = xp.map_shift(world, result)
+    if shift is not None:
+        dx, dy = shift.shift_mm
+        print(
+            f"the map as a whole lies ({dx:+.1f}, {dy:+.1f}) mm off, which no detection can see;\n"
+            f"without that shift the tags' error is {shift.tag_unshifted_mm:.1f} mm and the robot's "
+            f"{shift.robot_unshifted_mm:.1f} mm"
+        )
     if out:
         _write_plot(lambda path: xp.plot_run(setting, args.method, world, result, path), out)
     return 0
@@ -936,7 +944,7 @@ as [W]'s tables do, and draws the run into a PNG (needs matplotlib). 'jaxnav exp
 [W]'s tables and figures with many seeded runs.""",
         _examples(
             (
-                "PF-SLAM, 16 tags/m², 60 mm readers, three laps of the rectangle; writes jaxnav-hf-slam.png",
+                "PF-SLAM, 16 tags/m², 60 mm readers, six laps of the rectangle; writes jaxnav-hf-slam.png",
                 "jaxnav hf-slam",
             ),
             (
@@ -959,9 +967,12 @@ as [W]'s tables do, and draws the run into a PNG (needs matplotlib). 'jaxnav exp
         default=60.0,
         help="reader footprint side in mm (60 in [W] ch. 3, 100-500 in ch. 4)",
     )
-    hf.add_argument("--trajectory", choices=HF_TRAJECTORIES, default="rectangle", help="default rectangle (three laps)")
+    hf.add_argument("--trajectory", choices=HF_TRAJECTORIES, default="rectangle", help="default rectangle")
     hf.add_argument(
-        "--laps", type=_positive_int, default=3, help="laps of the rectangle (after the kidnapping for 'kidnapping')"
+        "--laps",
+        type=_positive_int,
+        default=6,
+        help="laps of the rectangle (after the kidnapping for 'kidnapping'; default 6; [W]'s tables: 3)",
     )
     hf.add_argument(
         "--steps", type=_positive_int, default=2000, help="steps of 0.1 s of the random trajectory (default 2000)"

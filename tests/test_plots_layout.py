@@ -234,7 +234,6 @@ def test_hf_slam_run_plot_keeps_its_legends_in_the_figure(monkeypatch):
     run = SimpleNamespace(true_poses=truth, kidnapped=kidnapped)
     # the simulator's arrays the plot reads, without running it
     monkeypatch.setattr(hf, "dead_reckoning", lambda r: truth + 0.05)
-    monkeypatch.setattr(hf, "detection_counts", lambda r, n: rng.integers(0, 60, n))
     monkeypatch.setattr(hf.tc, "tag_positions", lambda carpet: tags)
     method_run = hf.MethodRun(
         truth + rng.normal(0, 0.02, truth.shape),
@@ -248,6 +247,8 @@ def test_hf_slam_run_plot_keeps_its_legends_in_the_figure(monkeypatch):
         _assert_legends_inside(fig)
         texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
         assert "kidnapped here (B)" in texts and "start" in texts and "PF-SLAM map" in texts
+        shift_legend = [t.get_text() for t in fig.axes[2].get_legend().get_texts()]
+        assert shift_legend[0].startswith("as mapped (mean") and "common shift" in shift_legend[1]
     finally:
         plt.close(fig)
 

@@ -78,6 +78,8 @@ __all__ = [
     "run_once",
     "error_cell",
     "dead_reckoning",
+    "MapShift",
+    "map_shift",
     "detection_counts",
     "format_errors",
     "plot_run",
@@ -478,6 +480,48 @@ def dead_reckoning(run: tc.HFRun) -> jax.Array:
     return trajectories.integrate_controls(run.start_pose, run.odometry, "omni")
 
 
+class MapShift(NamedTuple):
+    """How far a SLAM map lies from the truth as a whole, and how well it has the truth's shape.
+
+    Attributes:
+        shift_mm: ``[2]`` the mean of ``mapped − true`` over the mapped tags (mm): the shift of the
+            whole map, which the detections cannot see (the robot is localised against the same map).
+        tag_mm: the tags' mean error ``|mapped − true|`` (mm), [W]'s ``dt``.
+        tag_unshifted_mm: the same with the shift taken off every tag, ``|mapped − true − shift|`` (mm):
+            the map's shape error.
+        robot_unshifted_mm: the robot's mean position error with the shift taken off, ``|x̂ − x − shift|``
+            (mm), to set beside [W]'s ``dr``.
+    """
+
+    shift_mm: np.ndarray
+    tag_mm: float
+    tag_unshifted_mm: float
+    robot_unshifted_mm: float
+
+
+def map_shift(world: World, result: MethodRun) -> MapShift | None:
+    """The map's common shift and the errors without it (:class:`MapShift`); None when no tag was mapped.
+
+    A SLAM map is pinned to the world only through the robot's start pose and the first detections, so
+    an error made then moves the whole map and the robot's estimate with it, and no later detection
+    can see it: the errors that remain once that shift is removed say how well the filter built the
+    map and followed the robot on it.
+    """
+    seen = np.asarray(result.seen, bool)
+    if not seen.any():
+        return None
+    d = np.asarray(result.tags, np.float64)[seen] - np.asarray(tc.tag_positions(world.carpet), np.float64)[seen]
+    shift = d.mean(axis=0)
+    e = np.asarray(result.estimates, np.float64)[:, :2] - np.asarray(world.run.true_poses, np.float64)[:, :2]
+    mm = 1000.0
+    return MapShift(
+        shift_mm=mm * shift,
+        tag_mm=mm * float(np.linalg.norm(d, axis=1).mean()),
+        tag_unshifted_mm=mm * float(np.linalg.norm(d - shift, axis=1).mean()),
+        robot_unshifted_mm=mm * float(np.linalg.norm(e - shift, axis=1).mean()),
+    )
+
+
 def format_errors(rows: list[tuple[str, Any]]) -> str:
     """A table like [W]'s: one row per ``(label, Errors)`` (a tag error with no tag mapped: :data:`~jaxnav.experiments.hf_slam.simulation.NOTHING_MAPPED`)."""
     columns = [report.Column("method", 16, "<")] + [report.Column(h, 9) for h in COLUMN_HEADS]
@@ -507,7 +551,6 @@ def _draw_run(setting: HFSetting, method: str, world: World, result: MethodRun):
     tags = np.asarray(tc.tag_positions(world.carpet))
     seen = np.asarray(result.seen, bool)
     mapped = np.asarray(result.tags)
-    counts = np.asarray(detection_counts(run, tags.shape[0]))
     times = np.arange(truth.shape[0]) * setting.dt
 
     # constrained layout makes room for the map's legend under it (tight_layout would cut it off)
@@ -533,8 +576,8 @@ def _draw_run(setting: HFSetting, method: str, world: World, result: MethodRun):
 
     err = 1000 * np.linalg.norm(est[:, :2] - truth[:, :2], axis=1)
     err_dr = 1000 * np.linalg.norm(dr[:, :2] - truth[:, :2], axis=1)
-    ax_err.plot(times, err_dr, color="tab:gray", lw=0.8, label="odometry")
-    ax_err.plot(times, err, color="tab:blue", lw=1, label=name)
+    ax_err.plot(times, err_dr, color="tab:gray", lw=0.8, label=f"odometry (mean {err_dr.mean():.0f} mm)")
+    ax_err.plot(times, err, color="tab:blue", lw=1, label=f"{name} (mean {err.mean():.0f} mm)")
     for k in kid:
         ax_err.axvline(times[k], color="tab:orange", ls="--", lw=1, label="kidnapping")
     ax_err.set_yscale("log")
@@ -543,18 +586,25 @@ def _draw_run(setting: HFSetting, method: str, world: World, result: MethodRun):
     ax_err.set_title("robot error")
     ax_err.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3)
 
-    te = 1000 * np.linalg.norm(mapped - tags, axis=1)
-    ax_tag.plot(counts[seen], te[seen], "o", ms=3, alpha=0.6, color="tab:red", label=f"{name} map: one mapped tag")
-    ax_tag.set_xlabel("detections of the tag (steps)")
-    ax_tag.set_ylabel("final tag error (mm)")
-    ax_tag.set_ylim(bottom=0)
-    ax_tag.set_title("tag error against detections")
-    ax_tag.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1))
+    shift = map_shift(world, result)
+    if shift is not None:
+        d = 1000 * (mapped - tags)[seen]
+        bins = np.linspace(0.0, max(float(np.linalg.norm(d, axis=1).max()), 1.0), 16)
+        dx, dy = shift.shift_mm
+        ax_tag.hist(np.linalg.norm(d, axis=1), bins, color="tab:red", alpha=0.5,
+                    label=f"as mapped (mean {shift.tag_mm:.0f} mm)")  # fmt: skip
+        ax_tag.hist(np.linalg.norm(d - shift.shift_mm, axis=1), bins, histtype="step", lw=2, color="k",
+                    label=f"the map's common shift ({dx:+.0f}, {dy:+.0f}) mm taken off (mean {shift.tag_unshifted_mm:.0f} mm)")  # fmt: skip
+        ax_tag.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1))
+    ax_tag.set_xlabel("final tag error (mm)")
+    ax_tag.set_ylabel("mapped tags")
+    ax_tag.set_title(f"{int(seen.sum())} mapped tags: error against the truth")
     return fig
 
 
 def plot_run(setting: HFSetting, method: str, world: World, result: MethodRun, path: str) -> None:
-    """Path and map (left), robot error over time (middle), tag error against detections (right); a PNG at ``path``."""
+    """Path and map (left), robot error over time (middle), the mapped tags' errors with and without the
+    map's common shift (right, :func:`map_shift`); a PNG at ``path``."""
     import matplotlib.pyplot as plt
 
     fig = _draw_run(setting, method, world, result)

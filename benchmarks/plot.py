@@ -163,9 +163,10 @@ def plot_w1(rows: Sequence[dict], path: str, title: str = "W1", subtitle: str = 
 
     fig.suptitle("\n".join(textwrap.wrap(title, 60 * ncols)) + (f"\n{subtitle}" if subtitle else ""), fontsize=10)
     legend_cols = 2 * ncols
-    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=legend_cols, fontsize=8, frameon=False)
+    # 10 pt: the figure is drawn about 0.6 times its size in a page's column, where 8 pt could not be read
+    fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=legend_cols, fontsize=10, frameon=False)
     legend_rows = math.ceil(len(handles) / legend_cols)
-    fig.tight_layout(rect=(0, min(0.4, (0.2 + 0.16 * legend_rows) / fig.get_figheight()), 1, 1))
+    fig.tight_layout(rect=(0, min(0.4, (0.2 + 0.2 * legend_rows) / fig.get_figheight()), 1, 1))
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     fig.savefig(path)
     plt.close(fig)

@@ -82,6 +82,8 @@ SLOW_FILES = (
     "tests/experiments/test_experiments_quick.py",
     "tests/test_notebooks.py",
     "tests/slam/test_pf_slam.py",
+    "tests/test_docs.py",
+    "tests/test_docs_guides.py",
     "tests/test_cli.py",
     "tests/experiments/test_ir_experiments.py",
     "tests/slam/test_hf_slam_runs.py",

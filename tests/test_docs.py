@@ -11,10 +11,10 @@ import importlib.util
 import json
 import pathlib
 import re
-import subprocess
-import sys
 
 import pytest
+
+from tests import doc_examples
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -25,11 +25,6 @@ def _load(name: str, path: pathlib.Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
-
-
-def _python_blocks(path: pathlib.Path) -> list[str]:
-    """The ```python fenced blocks of a Markdown file (illustrations use ```text or ```{code-block})."""
-    return re.findall(r"^```python\n(.*?)^```", path.read_text(), flags=re.S | re.M)
 
 
 def _hand_written_pages() -> list[pathlib.Path]:
@@ -47,48 +42,17 @@ EXAMPLE_PAGES = (
     "docs/guides/calibration.md",
 )
 
-# Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
-# {page: null, or the traceback of the block that failed}.
-_RUN_EXAMPLES = """
-import json, re, sys, traceback, types
-from pathlib import Path
-outcomes = {}
-for page in sys.argv[2:]:
-    blocks = re.findall(r"^```python\\n(.*?)^```", (Path(sys.argv[1]) / page).read_text(), flags=re.S | re.M)
-    module = types.ModuleType("docs_example")  # a real module: dataclasses look their class's module up
-    sys.modules[module.__name__] = module
-    try:
-        for block in blocks:  # later blocks use what earlier ones defined
-            exec(compile(block, page, "exec"), module.__dict__)
-        outcomes[page] = None if blocks else "no Python example"
-    except BaseException:
-        outcomes[page] = traceback.format_exc()
-print("OUTCOMES " + json.dumps(outcomes))
-"""
-
 
 @pytest.fixture(scope="module")
 def example_outcomes(tmp_path_factory, xla_defaults_env):
-    """The examples of :data:`EXAMPLE_PAGES`, run in one process with XLA's default flags: they are
-    small programs that run long (the README's study is 100 runs of 120 steps), for which the
-    suite's compile-fast flags cost several times the compilation they save."""
-    env = {**xla_defaults_env, "MPLBACKEND": "Agg"}
-    proc = subprocess.run(
-        [sys.executable, "-c", _RUN_EXAMPLES, str(ROOT), *EXAMPLE_PAGES],
-        cwd=tmp_path_factory.mktemp("examples"),
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=1200,
-    )
-    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("OUTCOMES ")]
-    assert line, f"the examples' process printed no outcome (exit {proc.returncode}):\n{proc.stderr[-4000:]}"
-    return json.loads(line[-1].removeprefix("OUTCOMES "))
+    """The examples of :data:`EXAMPLE_PAGES`, run in one process with XLA's default flags
+    (tests/doc_examples.py; the family guides' run in tests/test_docs_guides.py, on the other worker)."""
+    return doc_examples.run_pages(EXAMPLE_PAGES, tmp_path_factory.mktemp("examples"), xla_defaults_env)
 
 
 @pytest.mark.parametrize("page", EXAMPLE_PAGES)
 def test_python_examples_run_as_written(page, example_outcomes):
-    assert _python_blocks(ROOT / page), f"{page} has no Python example"
+    assert doc_examples.python_blocks(ROOT / page), f"{page} has no Python example"
     assert example_outcomes[page] is None, f"{page}:\n{example_outcomes[page]}"
 
 

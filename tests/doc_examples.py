@@ -1,0 +1,58 @@
+"""The Python examples of documentation pages, run as written: every ```python block of a page in order,
+in one namespace per page, all pages in one child process.
+
+A page's examples are small programs that run long (the README's study is 100 runs of 120 steps), so
+the child gets XLA's default flags (``xla_defaults_env`` of tests/conftest.py), for which the suite's
+compile-fast flags would cost several times the compilation they save. Blocks that need a dataset
+are written as ```{code-block} python and are not run.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+import subprocess
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+# Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
+# {page: null, or the traceback of the block that failed}.
+_RUN_EXAMPLES = """
+import json, re, sys, traceback, types
+from pathlib import Path
+outcomes = {}
+for page in sys.argv[2:]:
+    blocks = re.findall(r"^```python\\n(.*?)^```", (Path(sys.argv[1]) / page).read_text(), flags=re.S | re.M)
+    module = types.ModuleType("docs_example")  # a real module: dataclasses look their class's module up
+    sys.modules[module.__name__] = module
+    try:
+        for block in blocks:  # later blocks use what earlier ones defined
+            exec(compile(block, page, "exec"), module.__dict__)
+        outcomes[page] = None if blocks else "no Python example"
+    except BaseException:
+        outcomes[page] = traceback.format_exc()
+print("OUTCOMES " + json.dumps(outcomes))
+"""
+
+
+def python_blocks(path: pathlib.Path) -> list[str]:
+    """The ```python fenced blocks of a Markdown file (illustrations use ```text or ```{code-block})."""
+    return re.findall(r"^```python\n(.*?)^```", path.read_text(), flags=re.S | re.M)
+
+
+def run_pages(pages: tuple[str, ...], cwd: pathlib.Path, env: dict[str, str]) -> dict[str, str | None]:
+    """``{page: None, or the traceback of its block that failed}`` for ``pages`` (paths from the
+    repository root), run in one child process in ``cwd`` with ``env`` (a non-interactive matplotlib)."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _RUN_EXAMPLES, str(ROOT), *pages],
+        cwd=cwd,
+        env={**env, "MPLBACKEND": "Agg"},
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("OUTCOMES ")]
+    assert line, f"the examples' process printed no outcome (exit {proc.returncode}):\n{proc.stderr[-4000:]}"
+    return json.loads(line[-1].removeprefix("OUTCOMES "))

@@ -18,8 +18,9 @@ exactly as given, its extension choosing the format (``.png``, ``.pdf``, ``.svg`
 them into the FOLDER ``--out`` names, created if missing. ``--out ''`` writes
 no figure. The forms of earlier releases still work, with a deprecation warning
 on stderr: ``hf-slam`` and ``ir`` append ``.png`` to a name without a figure
-extension, and ``mrclam`` and ``uhf-real`` read a name that is no folder and does
-not end in ``/`` as a prefix of the file names (``PREFIX-robot1.png``).
+extension, ``mrclam`` and ``uhf-real`` read a name that is no folder and does
+not end in ``/`` as a prefix of the file names (``PREFIX-robot1.png``), and
+``experiments`` reads ``--out ''`` as the current folder (give ``.``).
 """
 
 from __future__ import annotations
@@ -673,6 +674,13 @@ def _cmd_experiments(args: argparse.Namespace) -> int:
         from jaxnav.core import processes
 
         processes.initialize(args.coordinator, args.num_processes, args.process_id)
+    if args.out == "":  # every other command reads '' as "write nothing"; here it named the current folder
+        args.out = "."
+        _deprecated(
+            args,
+            "--out '' is read as the current folder, as before; give --out . for it "
+            "(the next release refuses '': a run's results are its files)",
+        )
     _check_out_dir("--out", args.out)
     stem = registry.output_stem(args.out, exp.name, args.quick)
     _check_out_kinds("--out", args.out, [stem + ext for ext in (".runs.json", ".json", ".md", ".png")])

@@ -421,6 +421,22 @@ def test_experiments_writes_into_its_folder_created_if_missing(fake_runs, monkey
         assert f"wrote {os.path.join(out, 'table-3.1.png')}" in stdout
 
 
+def test_experiments_out_empty_is_the_current_folder_with_a_deprecation(fake_runs, monkeypatch, capsys):
+    """``experiments run --out ''`` wrote into the current folder; it still does, and says to give ``.``."""
+    monkeypatch.chdir(fake_runs)
+    status, stdout, err = _jaxnav_in_process(capsys, *XP, "--out", "")
+    assert status == 0, err
+    assert sorted(n for n in os.listdir(".") if n.startswith("table-3.1")) == [
+        "table-3.1.json",
+        "table-3.1.md",
+        "table-3.1.png",
+    ]
+    assert err == (
+        "jaxnav experiments: warning: deprecated: --out '' is read as the current folder, as before; give "
+        "--out . for it (the next release refuses '': a run's results are its files)\n"
+    )
+
+
 def test_a_figure_format_matplotlib_does_not_write_is_refused_before_computing(fake_runs, monkeypatch, capsys):
     from jaxnav import demo
 

@@ -179,9 +179,8 @@ def api_groups(modules: list[str]) -> list[tuple[str, str, str, list[str]]]:
     members: dict[str, list[str]] = {}
     for name in modules:
         members.setdefault(api_group(name, modules), []).append(name)
-    known = [(key, title, blurb) for key, title, blurb in API_GROUPS]
     new = [(key, f"`jaxnav.{key}`", "") for key in members if key not in {k for k, *_ in API_GROUPS} | {INTERNALS[0]}]
-    return [(key, title, blurb, members[key]) for key, title, blurb in [*known, *new, INTERNALS] if key in members]
+    return [(key, title, blurb, members[key]) for key, title, blurb in [*API_GROUPS, *new, INTERNALS] if key in members]
 
 
 def short_title(name: str, group: str) -> str:

@@ -730,11 +730,11 @@ _DOCS = (
 
 _DATA = (
     "The data are read from the folder --data names, else $JAXNAV_DATA, else ../shared/data relative to\n"
-    "the repository (a source checkout; never to the current folder): a folder holding {folder}/,\n"
-    "downloaded from {source}."
+    "the repository (a source checkout; ~/.local/share/jaxnav for an installed copy; never the current\n"
+    "folder): a folder holding {folder}/,\ndownloaded from {source}."
 )
 
-_DATA_HELP = "data folder (default $JAXNAV_DATA, else ../shared/data relative to the repository)"
+_DATA_HELP = "data folder (default $JAXNAV_DATA, else the default data folder: see below)"
 
 _FIGURE_HELP = "figure file; its extension (.png, .pdf, .svg, …) sets the format ('' for none; default {default})"
 _OLD_FIGURE_HELP = "; a name without a figure extension gets .png, as before (deprecated)"

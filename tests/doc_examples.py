@@ -1,5 +1,6 @@
-"""The Python examples of documentation pages, run as written: every ```python block of a page in order,
-in one namespace per page, all pages in one child process.
+"""Helpers of the documentation's tests: the scripts of ``docs/`` loaded as modules, and the Python
+examples of documentation pages run as written (every ```python block of a page in order, in one
+namespace per page, all pages in one child process).
 
 A page's examples are small programs that run long (the README's study is 100 runs of 120 steps), so
 the child gets XLA's default flags (``xla_defaults_env`` of tests/conftest.py), for which the suite's
@@ -9,6 +10,7 @@ are written as ```{code-block} python and are not run.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import pathlib
 import re
@@ -16,6 +18,16 @@ import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+
+def load_docs_script(name: str, module_name: str | None = None):
+    """``docs/NAME.py`` (``generate``, ``check_links``) imported as a module, under ``module_name``."""
+    spec = importlib.util.spec_from_file_location(module_name or name, DOCS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
 
 # Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
 # {page: null, or the traceback of the block that failed}.

@@ -6,26 +6,20 @@ generated Markdown; they do not run Sphinx (the site is built by ``.ci/run``).
 
 from __future__ import annotations
 
-import importlib.util
 import pathlib
 import re
 
 import pytest
 
+from tests import doc_examples
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
 
-def _load(name: str, path: pathlib.Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def generate():
-    return _load("generate_api", DOCS / "generate.py")
+    return doc_examples.load_docs_script("generate", "generate_api")
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ a front page, and the helpers the build relies on.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import pathlib
 import re
@@ -18,13 +17,6 @@ from tests import doc_examples
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-
-
-def _load(name: str, path: pathlib.Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _hand_written_pages() -> list[pathlib.Path]:
@@ -92,7 +84,7 @@ def test_citation_file_names_the_package_version():
 
 
 def test_link_checker_finds_missing_files_fragments_and_remote_assets(tmp_path):
-    check = _load("check_links", DOCS / "check_links.py")
+    check = doc_examples.load_docs_script("check_links")
     (tmp_path / "sub").mkdir()
     (tmp_path / "index.html").write_text(
         '<a href="sub/page.html#here">ok</a><a href="sub/page.html#gone">bad id</a>'
@@ -117,7 +109,7 @@ def test_link_checker_finds_missing_files_fragments_and_remote_assets(tmp_path):
 
 
 def test_thesis_summary_counts_values_against_intervals():
-    generate = _load("generate", DOCS / "generate.py")
+    generate = doc_examples.load_docs_script("generate")
     result = {
         "rows": [
             {"x_mm": {"mean": 10.0, "ci95": [8.0, 12.0], "paper": 11.0}},  # inside
@@ -135,7 +127,7 @@ def test_thesis_summary_counts_values_against_intervals():
 
 
 def test_benchmark_headers_name_the_machine_but_no_revision_or_local_path():
-    generate = _load("generate", DOCS / "generate.py")
+    generate = doc_examples.load_docs_script("generate")
     header = (
         "Measured on AMD EPYC, 2 cores, copy bandwidth 24.9 GB/s; jaxnav 74a1c12+dirty, jax 0.10.2. "
         "Command: `python -m benchmarks.run --only W2 --out /tmp/x/after.json`."
@@ -148,7 +140,7 @@ def test_benchmark_headers_name_the_machine_but_no_revision_or_local_path():
 
 
 def test_every_public_module_gets_an_api_page():
-    generate = _load("generate", DOCS / "generate.py")
+    generate = doc_examples.load_docs_script("generate")
     modules = generate.public_modules()
     for name in ("jaxnav.core.resampling", "jaxnav.slam.ps_slam", "jaxnav.localization.rfid_tag", "jaxnav.cli"):
         assert name in modules
@@ -159,7 +151,7 @@ def test_every_registered_experiment_has_a_committed_full_result():
     """The reproduction pages are generated from these files; a page below its run count says so."""
     from jaxnav.experiments import registry
 
-    generate = _load("generate", DOCS / "generate.py")
+    generate = doc_examples.load_docs_script("generate")
     for name in registry.names():
         result = json.loads((ROOT / "benchmarks" / "results" / "experiments" / f"{name}.json").read_text())
         assert result["experiment"] == name and result["quick"] is False and result["runs"] >= 1
@@ -170,7 +162,7 @@ def test_committed_results_have_the_runs_their_pages_promise():
     """Tables rest on at least 100 runs per row, figures on at least 50 per point."""
     from jaxnav.experiments import registry
 
-    generate = _load("generate", DOCS / "generate.py")
+    generate = doc_examples.load_docs_script("generate")
     short = []
     for name in registry.names():
         result = json.loads((ROOT / "benchmarks" / "results" / "experiments" / f"{name}.json").read_text())

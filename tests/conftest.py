@@ -23,7 +23,7 @@ may differ in the last bits of a float, as between two XLA versions).
 
 Two more keep a worker small and the slow parts short: JAX's in-memory programs
 are dropped after each test file (a worker that kept them all grew past 6 GB),
-and child processes whose programs run long (the documentation's examples, the
+and child processes whose programs run long (the documentation examples and the
 notebooks that run more than they compile) get XLA's default flags (:func:`xla_defaults_env`).
 """
 

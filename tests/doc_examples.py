@@ -2,10 +2,10 @@
 examples of documentation pages run as written (every ```python block of a page in order, in one
 namespace per page, all pages in one child process).
 
-A page's examples are small programs that run long (the README's study is 100 runs of 120 steps), so
-the child gets XLA's default flags (``xla_defaults_env`` of tests/conftest.py), for which the suite's
-compile-fast flags would cost several times the compilation they save. Blocks that need a dataset
-are written as ```{code-block} python and are not run.
+The caller chooses the child's XLA flags: XLA's defaults for pages whose examples run long (the README's
+study is 100 runs of 120 steps; ``xla_defaults_env`` of tests/conftest.py), the suite's compile-fast flags
+for pages whose examples mostly compile. Blocks that need a dataset are written as ```{code-block} python
+and are not run.
 """
 
 from __future__ import annotations

@@ -42,7 +42,9 @@ One step, for ``K`` detection slots (ids, readers, mask):
    re-detected tag's particle set *before* its update instead,
    ``log Σ_j w_j Π_k p(z_k | x, m_j)`` over the group's slots ``k``: the
    predictive density of the step's observations, right when a tag's set is
-   far from one point (a range-only ring), at ``K·I·J`` evaluations.
+   far from one point (a range-only ring), at ``K·I·J`` evaluations. A tag model may instead
+   name mixture points of the *updated* row (``TagModel.robot_target``: PS-SLAM's smoothed or
+   current particles, :mod:`jaxnav.slam.ps_slam`, "Readings").
 
 Choices where [W] is silent (stated here, tested):
 
@@ -388,10 +390,18 @@ class TagModel(NamedTuple):
             (``config.sensor.initialise``), or the row's (PS-SLAM: jittered).
         finish: ``(key, row, particles, log_weights, log_likelihood [J], is_new, config, params) -> row``:
             weight, resample, estimate.
+        robot_target: ``None`` (PF-SLAM), or ``(rows, config) -> None | (points [K, P, D], log_weights [K, P])``:
+            with points, a re-detected tag weights the robot by the mixture ``log Σ_p w_p Π_k p(z_k | x, m_p)``
+            over the points of its updated rows (``rows`` batched over the ``K`` slots) instead of by its
+            estimate (PS-SLAM's ``robot_target``). Only read with ``robot_likelihood="estimate"``.
+        uses_robot_particles: ``None``, or ``config -> bool``: when true, ``propose`` is also given
+            ``robot=(poses [I, 3], log_weights [I])``, the robot's moved particles (PS-SLAM's ``tag_init``).
     """
 
     propose: Callable[..., Any]
     finish: Callable[..., Any]
+    robot_target: Callable[..., Any] | None = None
+    uses_robot_particles: Callable[[Any], bool] | None = None
 
 
 class StepResult(NamedTuple):
@@ -538,9 +548,12 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
     # particles, is left out). This is the group's joint likelihood without a K·K·J evaluation.
     tag_keys = jax.vmap(lambda i: jax.random.fold_in(k_tags, i))(ids)
     first_z = jax.tree_util.tree_map(lambda a: a[first], z)
-    particles, log_w = jax.vmap(lambda k, row, new, zk: tag_model.propose(k, row, new, pose_est, zk, config, params))(
-        tag_keys, rows, is_new, first_z
-    )
+    propose_kw = {}
+    if tag_model.uses_robot_particles is not None and tag_model.uses_robot_particles(config):
+        propose_kw["robot"] = (poses, state_log_weights)
+    particles, log_w = jax.vmap(
+        lambda k, row, new, zk: tag_model.propose(k, row, new, pose_est, zk, config, params, **propose_kw)
+    )(tag_keys, rows, is_new, first_z)
     # Materialised for the same reason as the poses: otherwise PS-SLAM's ring mean fuses the jitter
     # draw and recomputes it for every ring entry, which would dominate the step.
     particles = jax.lax.optimization_barrier(particles)
@@ -586,6 +599,11 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
         # the tags' particle sets are not updated before this weighting: the check's likelihoods
         # serve, unless the recovery redrew the particles
         robot_ll = jax.lax.cond(lost, mixture_log_likelihood, lambda p: ll_prev, poses) if config.recovery else ll_prev
+    elif (target := _robot_target(tag_model, new_rows, rows, lost | ~row_ok, config)) is not None:
+        points, point_lw = target
+        robot_ll = _robot_mixture_log_likelihood(
+            poses, points, point_lw, z, same & known[:, None], leader & known, sensor, sensor_params
+        )
     else:
         robot_ll = _robot_log_likelihood(poses, estimates, z, known, sensor, sensor_params)
     poses, loglik = keep_finite(state_poses, poses, robot_ll)
@@ -607,6 +625,18 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
         slot_counts=jnp.where(valid, counts_after, 0),
     )
     return StepResult(write_ids, new_rows, res.particles, res.log_weights, info)
+
+
+def _robot_target(tag_model: TagModel, new_rows: Any, rows: Any, keep: jax.Array, config: Any):
+    """The tag model's mixture points for the robot weighting (``TagModel.robot_target``), or ``None``
+    for the estimates. A slot whose row is not written (``keep [K]``: a lost step, an update that is
+    not finite) gives the points of its gathered row, as the estimates do."""
+    if tag_model.robot_target is None or (updated := tag_model.robot_target(new_rows, config)) is None:
+        return None
+    gathered = tag_model.robot_target(rows, config)
+    return jax.tree_util.tree_map(
+        lambda old, new: jnp.where(keep.reshape(keep.shape + (1,) * (new.ndim - 1)), old, new), gathered, updated
+    )
 
 
 def resampled_log_weights(row: Any, res: resampling.ResampleResult, config: Any) -> jax.Array:

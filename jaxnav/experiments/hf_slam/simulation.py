@@ -59,6 +59,7 @@ __all__ = [
     "METHODS",
     "METHOD_LABELS",
     "TRAJECTORIES",
+    "SMOOTHER_READINGS",
     "HFSetting",
     "World",
     "MethodRun",
@@ -91,6 +92,8 @@ METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSL
 """The names of :data:`METHODS` in the tables, the figures and :func:`plot_run`."""
 TRAJECTORIES = ("rectangle", "random", "kidnapping")
 """The trajectories a :class:`HFSetting` can drive."""
+SMOOTHER_READINGS = ("robot_target", "resampled_state", "history", "smoothing_order", "tag_init")
+"""The fields of :class:`~jaxnav.slam.ps_slam.PSSLAMConfig` a :class:`HFSetting` may set (``smoother_readings``)."""
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,9 @@ class HFSetting:
         odometry_sd: σ of [W] eq. 3.6 (m/s, m/s, rad/s).
         robot_particles, tag_particles: I and J (FastSLAM uses I).
         lag: PS-SLAM lag L; smoother_jitter: PS-SLAM tag jitter (m), None = σ/10.
+        smoother_readings: ``((field, value), …)``: PS-SLAM's readings of [W] Alg. 2 other than the
+            defaults, fields of :class:`~jaxnav.slam.ps_slam.PSSLAMConfig` (``robot_target``,
+            ``resampled_state``, ``history``, ``smoothing_order``, ``tag_init``); ``()`` runs the defaults.
         beta: β of [W] eq. 3.7.
         fastslam_version: 1 or 2.
     """
@@ -133,6 +139,7 @@ class HFSetting:
     tag_particles: int = 100
     lag: int = 20
     smoother_jitter: float | None = None
+    smoother_readings: tuple[tuple[str, str], ...] = ()
     beta: float = hf_rfid.DEFAULT_BETA
     fastslam_version: int = 1
 
@@ -154,6 +161,12 @@ class HFSetting:
             raise ValueError(f"rectangle {self.rectangle!r} must lie inside the carpet (0, 0)–{self.carpet!r}")
         if self.smoother_jitter is not None and not self.smoother_jitter >= 0:
             raise ValueError(f"smoother_jitter must be ≥ 0 m or None, got {self.smoother_jitter!r}")
+        for pair in self.smoother_readings:
+            if not (isinstance(pair, tuple) and len(pair) == 2 and pair[0] in SMOOTHER_READINGS):
+                raise ValueError(
+                    f"smoother_readings must be (field, value) pairs with a field in {SMOOTHER_READINGS}, got {pair!r}"
+                )
+        ps_slam.PSSLAMConfig(max_tags=1, **dict(self.smoother_readings))  # refuses a value it does not know
 
     def _check_carpet(self) -> None:
         """The carpet, its density and the readers must make a lattice the readers can drive over."""
@@ -362,8 +375,13 @@ def run_method(key: jax.Array, method: str, setting: HFSetting, world: World) ->
     return filter_world(key, method, setting, world)[0]
 
 
-def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) -> tuple[MethodRun, Any]:
-    """:func:`run_method` and the filter's whole per-step trace (``SLAMInfo`` or ``FastSLAMInfo``)."""
+def filter_world(
+    key: jax.Array, method: str, setting: HFSetting, world: World, tag_jitter_sd: Any = None
+) -> tuple[MethodRun, Any]:
+    """:func:`run_method` and the filter's whole per-step trace (``SLAMInfo`` or ``FastSLAMInfo``).
+
+    ``tag_jitter_sd``: PS-SLAM's tag jitter (m) as an array, which may be traced (a ``vmap`` over
+    jitters); ``None`` takes ``setting.smoother_jitter``."""
     check_choice("method", method, METHODS)
     k_init, k_run = jax.random.split(key)
     run = world.run
@@ -400,12 +418,16 @@ def filter_world(key: jax.Array, method: str, setting: HFSetting, world: World) 
         params = pf_slam.PFSLAMParams(setting.motion(), sensor)
     else:
         module = ps_slam
-        config = ps_slam.PSSLAMConfig(setting.robot_particles, setting.tag_particles, num_tags, lag=setting.lag)
+        config = ps_slam.PSSLAMConfig(
+            setting.robot_particles, setting.tag_particles, num_tags, lag=setting.lag, **dict(setting.smoother_readings)
+        )
         jitter = (
             ps_slam.default_jitter(sensor)
             if setting.smoother_jitter is None
             else jnp.asarray(setting.smoother_jitter, jnp.float32)
         )
+        if tag_jitter_sd is not None:
+            jitter = jnp.asarray(tag_jitter_sd, jnp.float32)
         params = ps_slam.PSSLAMParams(setting.motion(), sensor, jitter)
     module.check_capacity(config, num_tags)
     state = module.init(k_init, config, params, start)

@@ -63,13 +63,54 @@ zeros): their slots hold the finite dummies ``rssi = MASKED_RSSI = 1 W``,
 ``phase = 0`` and the true reader pose and wavelength, which pass
 :func:`~jaxnav.models.uhf_reads.validate_reads`.
 
+.. rubric:: Spatially correlated fading (option, off by default)
+
+With ``Multipath.correlation_length = ℓ`` (m; :func:`correlated_fading`,
+default :data:`FADING_CORRELATION_LENGTH` = λ/2 of
+:data:`~jaxnav.models.uhf_channel.DEFAULT_CHANNEL`) the fading ``g_j`` of the
+equations above is no longer drawn independently for every tag: it is the
+value at the tag of a random field drawn afresh for every read slot
+``(t, j)`` and shared by all the tags, so two tags closer than ``ℓ`` fade
+together and two tags farther apart fade nearly independently (the anchor
+tag's fading describes the tag's only when it is close, [A] §5.2)::
+
+    g_j(p) = θ · B_j · Σ_{i=1…m} |z_ij(p)|²,        m = ⌈k⌉,  B_j ~ Beta(k, m − k)  (B_j = 1 for a whole k)
+    z_ij(p) = Σ_{n=1…N} c_ijn · exp(j (π/ℓ) u_ijn · p),   c_ijn ~ CN(0, 1/N),  u_ijn uniform on the unit sphere
+
+(``p`` in m, ``π/ℓ`` in rad/m; ``N`` = ``fading_waves``, default
+:data:`FADING_WAVES` = 64). Each ``z`` is a sum of ``N`` plane waves of
+wavenumber ``π/ℓ`` from random directions with complex Gaussian amplitudes: the
+random-phasor (spectral) form of a diffuse 3D field, a random version of the
+image sources above. At one point ``z ~ CN(0, 1)`` exactly, whatever the
+directions, so ``Σ|z|² ~ Gamma(m, 1)`` and ``B·Gamma(m, 1) ~ Gamma(k, 1)``:
+``g ~ Gamma(k, θ)``, the preset's marginal, exactly. Between two points a
+distance ``d`` (m) apart, ``E[z(p) z*(p')] = ρ(d) = sin(πd/ℓ)/(πd/ℓ)``
+(the isotropic 3D field; ``ℓ = λ/2`` gives the classical
+``sin(2πd/λ)/(2πd/λ)`` of waves at the carrier, first zero at ``d = λ/2``),
+and the fading powers are correlated by (:func:`fading_correlation`)::
+
+    corr(g(p), g(p')) = (m − k)/(m + 1) + (k + 1)/(m + 1) · [ρ(d)² + (1 − ρ(d)²)/N]
+
+(``ρ² + (1 − ρ²)/N`` for a whole ``k``; the ``1/N`` floor is the finite
+number of waves). We chose this field over a Gaussian field on a grid or a
+Cholesky factor over the tags because it is exact at any point without a
+grid, its correlation is closed form, a tag's value depends on its own
+position only (a subset of the tags with their ``tag_ids`` still reproduces
+the full run's reads), and it is a sum of cosines: jittable, vmappable and
+differentiable in the positions, ``θ`` and ``ℓ`` (``k`` fixes the number of
+fields, a shape: it must be concrete, or ``fading_fields = m ≥ k`` given).
+The phase and the wall term ``h_mp`` are unchanged; so are the read
+and phase keys, so switching the option on changes the RSSI only.
+
 Channel hopping: ``wavelengths`` is one λ or an array ``[C]`` cycled over
 steps (step ``t`` uses ``λ[t mod C]`` for its ``J`` reads).
 
 Keys: tag ``g`` with id ``tag_ids[g]`` (default ``g``) and step ``t`` draw from
 ``k_gt = fold_in(fold_in(key, tag_ids[g]), t)``, split into
 ``(k_fade, k_phase, k_read)``. A tag's reads therefore depend only on its own
-id, position and offset, never on the other tags or their order.
+id, position and offset, never on the other tags or their order. The
+correlated fading field of step ``t`` draws from ``fold_in(k_field, t)``, ``k_field``
+made of two words of ``key``'s own stream (no tag's ``fold_in`` gives it).
 
 .. rubric:: Multipath presets (all numbers **ours**; [A] gives none)
 
@@ -99,9 +140,10 @@ Fig. 5.2, and :func:`~jaxnav.sim.trajectories.lawnmower_path`, parallel
 passes that make a tag observable in 3D.
 
 Units: SI (m, rad, W). All array functions are jittable and differentiable in
-the continuous parameters (positions, ``Γ``, room, ``k``, ``θ``, ``σ_φ``, λ);
-the detection mask and the piecewise-constant antenna gain are steps (pass
-``softness`` for a smooth gain).
+the continuous parameters (positions, ``Γ``, room, ``k``, ``θ``, ``σ_φ``, λ, and
+the correlated fading's ``ℓ``; with correlated fading ``k`` sets the number of
+fields, a shape, and is not differentiated); the detection mask and the
+piecewise-constant antenna gain are steps (pass ``softness`` for a smooth gain).
 """
 
 from __future__ import annotations
@@ -145,6 +187,10 @@ __all__ = [
     "STRONG_MULTIPATH",
     "MULTIPATH_NAMES",
     "get_multipath",
+    "FADING_CORRELATION_LENGTH",
+    "FADING_WAVES",
+    "correlated_fading",
+    "fading_correlation",
     "image_sequences",
     "line_path",
     "lawnmower_path",
@@ -212,11 +258,16 @@ class Multipath(NamedTuple):
             ``g = |h_f|² ~ Gamma(k, θ)``.
         phase_sigma: ``σ_φ`` (rad), sd of the Gaussian phase noise ``ε``.
         room: :class:`Room`; all ``Γ = 0`` gives the light (two-ray + Gamma) model.
+        correlation_length: ``None`` (default): the fading ``g`` is drawn
+            independently for every tag; ``ℓ > 0`` (m): the spatially correlated
+            fading field of the module docstring, correlation length ``ℓ`` (the first
+            zero of the field's correlation ``sin(πd/ℓ)/(πd/ℓ)``).
     """
 
     gamma: GammaParams
     phase_sigma: Any
     room: Room
+    correlation_length: Any = None
 
 
 LIGHT_MULTIPATH = Multipath(
@@ -236,6 +287,14 @@ STRONG_MULTIPATH = Multipath(
 MULTIPATH_NAMES = {"light": LIGHT_MULTIPATH, "strong": STRONG_MULTIPATH}
 """The multipath presets by name (``"light"``, ``"strong"``)."""
 
+FADING_CORRELATION_LENGTH = DEFAULT_CHANNEL.wavelength / 2.0
+"""Default correlation length ``ℓ`` of the correlated fading (m): λ/2 of :data:`~jaxnav.models.uhf_channel.DEFAULT_CHANNEL`
+(0.0865 m for [A]'s λ = 0.173 m), where [A] §5.2 says two tags stop being correlated."""
+
+FADING_WAVES = 64
+"""Plane waves ``N`` per Gaussian field of the correlated fading: the power correlation keeps a floor of about
+``1/N`` (0.016) beyond ``ℓ``; the cost per read is ``⌈k⌉·N`` cosines per tag."""
+
 
 def get_multipath(multipath: str | Multipath) -> Multipath:
     """``"light"`` / ``"strong"`` → the preset :class:`Multipath`; a :class:`Multipath` is validated and returned."""
@@ -251,11 +310,47 @@ def get_multipath(multipath: str | Multipath) -> Multipath:
     return multipath
 
 
+def correlated_fading(multipath: str | Multipath = "strong", length: Any = FADING_CORRELATION_LENGTH) -> Multipath:
+    """The preset (or :class:`Multipath`) ``multipath`` with spatially correlated fading of correlation length ``length`` (m).
+
+    ``simulate_reads(key, path, tags, multipath=correlated_fading("strong"))``: the
+    module docstring's field, ``ℓ = λ/2`` by default.
+    """
+    mp = get_multipath(multipath)._replace(correlation_length=length)
+    validate_multipath(mp)
+    return mp
+
+
+def fading_correlation(
+    distance: Any, k: Any, length: Any = FADING_CORRELATION_LENGTH, waves: int = FADING_WAVES
+) -> jax.Array:
+    """Correlation coefficient of the correlated fading ``g`` at two points ``distance`` (m) apart (module docstring).
+
+    ``corr = (m − k)/(m + 1) + (k + 1)/(m + 1) · [ρ² + (1 − ρ²)/N]`` with
+    ``ρ(d) = sin(πd/ℓ)/(πd/ℓ)``, ``m = ⌈k⌉``, ``N = waves``, ``ℓ = length`` (m);
+    ``k`` is the fading's Gamma shape (a concrete number: it sets ``m``). Broadcasts over
+    ``distance``; traceable in ``distance`` and ``length``.
+    """
+    check_nonnegative("distance", distance)
+    check_positive("length", length)
+    check_positive("k", k)
+    n = check_positive_int("waves", waves)
+    k = float(np.asarray(k))
+    m = math.ceil(k)
+    rho = jnp.sinc(jnp.asarray(distance) / jnp.asarray(length))  # numpy's sinc: sin(πx)/(πx)
+    power = rho * rho + (1.0 - rho * rho) / n
+    return (m - k) / (m + 1) + (k + 1) / (m + 1) * power
+
+
 def validate_multipath(mp: Multipath) -> None:
-    """``k, θ > 0``, ``σ_φ ≥ 0``, room ``lo < hi`` (``[3]`` each) with the floor at 0, ``|Γ| ≤ 1`` (``[5]``)."""
+    """``k, θ > 0``, ``σ_φ ≥ 0``, room ``lo < hi`` (``[3]`` each) with the floor at 0, ``|Γ| ≤ 1`` (``[5]``),
+    ``correlation_length`` ``None`` or a scalar ``> 0``."""
     if not isinstance(mp, Multipath):
         raise ValueError(f"multipath must be a Multipath, got {type(mp).__name__}")
     uhf_rfid.validate_gamma(mp.gamma)
+    if mp.correlation_length is not None:
+        check_shape("multipath.correlation_length", mp.correlation_length, ())
+        check_positive("multipath.correlation_length", mp.correlation_length)
     check_nonnegative("multipath.phase_sigma", mp.phase_sigma)
     check_shape("multipath.room.lo", mp.room.lo, (3,))
     check_shape("multipath.room.hi", mp.room.hi, (3,))
@@ -520,15 +615,19 @@ def expected_rssi(
 # --------------------------------------------------------------------------------------
 
 
-def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness):
-    """Reads of one tag at one step: ``[J]`` each."""
+def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness, field=None):
+    """Reads of one tag at one step: ``[J]`` each (``field``: the step's correlated fading draws, or None)."""
     k_fade, k_phase, k_read = jax.random.split(key, 3)
     a = uhf_rfid.power_scale(reader, tag, channel, softness=softness, wavelength=lam)
     re, im, dist = multipath_gain(reader, tag, lam, channel.antenna, mp.room, seqs, softness)
     m2 = re * re + im * im
     a_eff = a * m2 * m2
-    # a_eff = 0 (a tag or reader on the ground) gives y = 0, masked below; keep sample_rssi's input > 0
-    y = uhf_rfid.sample_rssi(k_fade, jnp.where(a_eff > 0, a_eff, 1.0), mp.gamma, (num_reads,))
+    if field is None:
+        # a_eff = 0 (a tag or reader on the ground) gives y = 0, masked below; keep sample_rssi's input > 0
+        y = uhf_rfid.sample_rssi(k_fade, jnp.where(a_eff > 0, a_eff, 1.0), mp.gamma, (num_reads,))
+    else:
+        g = _field_fading(field, tag, mp)
+        y = a_eff * g * g
     y = jnp.where(a_eff > 0, y, 0.0)
     eps = mp.phase_sigma * rng.normal(k_phase, (num_reads,), y.dtype)
     phi = uhf_rfid.phase(dist, lam, offset + 2.0 * jnp.arctan2(im, re) + eps)
@@ -543,14 +642,69 @@ def _one(key, reader, tag, offset, lam, channel, mp, sens, tag_sens, p_read, num
     )
 
 
-@partial(jax.jit, static_argnames=("num_reads", "seqs", "softness"))
-def _simulate(key, path, tags, offsets, tag_ids, lam_t, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness):
+class _Field(NamedTuple):
+    """One step's draws of the correlated fading: directions ``u [J, m, N, 3]``, amplitudes ``c [J, m, N, 2]``
+    (real, imaginary; variance ``1/(2N)`` each), the Beta factors ``b [J]`` (ones for a whole ``k``)."""
+
+    u: jax.Array
+    c: jax.Array
+    b: jax.Array
+
+
+def _field_key(key):
+    """Two words of ``key``'s own stream as a key: no ``fold_in`` of a tag id or a step gives it."""
+    data = jax.random.bits(key, (2,), jnp.uint32)
+    if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(data, impl=jax.random.key_impl(key))
+    return data
+
+
+def _field_draws(key, t, k, num_reads, fading, dtype):
+    """The correlated fading field of step ``t`` (shared by every tag)."""
+    m, waves, whole = fading
+    k_dir, k_amp, k_a, k_b = jax.random.split(jax.random.fold_in(key, t), 4)
+    u = rng.normal(k_dir, (num_reads, m, waves, 3), dtype)
+    u = u / jnp.maximum(jnp.linalg.norm(u, axis=-1, keepdims=True), 1e-30)  # isotropic directions
+    c = rng.normal(k_amp, (num_reads, m, waves, 2), dtype) * math.sqrt(0.5 / waves)
+    if whole:
+        b = jnp.ones((num_reads,), dtype)
+    else:  # B = G_k / (G_k + G_{m−k}) ~ Beta(k, m − k); m − k = 0 (a whole k seen only at run time) gives B = 1
+        rest = m - k
+        ga = jax.random.gamma(k_a, jnp.broadcast_to(k, (num_reads,)), dtype=dtype)
+        gb = jax.random.gamma(k_b, jnp.broadcast_to(jnp.maximum(rest, 1e-6), (num_reads,)), dtype=dtype)
+        b = jnp.where(rest > 0, ga / (ga + gb), 1.0)
+    return _Field(u, c, b)
+
+
+def _field_fading(field: _Field, tag, mp):
+    """``g [J] = θ B Σ_i |z_i(p)|²`` at the tag ``p [3]`` (module docstring)."""
+    kappa = jnp.pi / mp.correlation_length
+    # u·p written out: jax 0.10.2 on the CPU miscompiles sum(u * p, axis=-1) at these sizes, giving every tag the
+    # first one's value (jax-ml/jax#39103)
+    u = field.u
+    ph = kappa * (u[..., 0] * tag[0] + u[..., 1] * tag[1] + u[..., 2] * tag[2])  # [J, m, N]
+    cos, sin = jnp.cos(ph), jnp.sin(ph)
+    cr, ci = field.c[..., 0], field.c[..., 1]
+    z_re = jnp.sum(cr * cos - ci * sin, axis=-1)
+    z_im = jnp.sum(cr * sin + ci * cos, axis=-1)
+    return mp.gamma.theta * field.b * jnp.sum(z_re * z_re + z_im * z_im, axis=-1)
+
+
+@partial(jax.jit, static_argnames=("num_reads", "seqs", "softness", "fading"))
+def _simulate(
+    key, path, tags, offsets, tag_ids, lam_t, channel, mp, sens, tag_sens, p_read, num_reads, seqs, softness, fading
+):
     steps = jnp.arange(path.shape[0])
+    if fading is None:
+        fields = None
+    else:
+        k_field = _field_key(key)
+        fields = jax.vmap(lambda t: _field_draws(k_field, t, mp.gamma.k, num_reads, fading, path.dtype))(steps)
 
     def per_tag(tid, tag, off):
         k_tag = jax.random.fold_in(key, tid)
 
-        def per_step(t, reader, lam):
+        def per_step(t, reader, lam, field):
             return _one(
                 jax.random.fold_in(k_tag, t),
                 reader,
@@ -565,9 +719,10 @@ def _simulate(key, path, tags, offsets, tag_ids, lam_t, channel, mp, sens, tag_s
                 num_reads,
                 seqs,
                 softness,
+                field,
             )
 
-        return jax.vmap(per_step)(steps, path, lam_t)
+        return jax.vmap(per_step)(steps, path, lam_t, fields)
 
     out = jax.vmap(per_tag)(tag_ids, tags, offsets)
     return UHFReads(*out)
@@ -588,6 +743,8 @@ def simulate_reads(
     tag_ids: Any = None,
     order: int = 2,
     softness: Any = None,
+    fading_fields: int | None = None,
+    fading_waves: int = FADING_WAVES,
 ) -> UHFReads:
     """RSSI and phase reads of ``G`` tags along a reader path: :class:`~jaxnav.models.uhf_reads.UHFReads` ``[G, T, J]``.
 
@@ -599,7 +756,9 @@ def simulate_reads(
         theta_offset: ``[G]`` phase offsets ``θ_off`` (rad); default 0.
         channel: :class:`~jaxnav.models.uhf_channel.ChannelParams`
             (``channel.wavelength`` is the λ unless ``wavelengths`` is given).
-        multipath: ``"light"``, ``"strong"`` or a :class:`Multipath`.
+        multipath: ``"light"``, ``"strong"`` or a :class:`Multipath`; one with a
+            ``correlation_length`` (:func:`correlated_fading`) draws the spatially
+            correlated fading of the module docstring instead of an independent one per tag.
         reads_per_step: ``J`` read slots per step (all at the step's pose).
         wavelengths: ``None``, one λ (m), or ``[C]`` λ's cycled over steps
             (step ``t`` uses ``λ[t mod C]``; channel hopping).
@@ -612,6 +771,10 @@ def simulate_reads(
         order: image-method reflection order (0, 1 or 2; ignored without walls).
         softness: antenna-gain relaxation (rad), see
             :func:`jaxnav.models.uhf_antenna.antenna_gain`.
+        fading_fields: correlated fading only: the number ``m ≥ k`` of Gaussian fields
+            (a shape). Default ``⌈k⌉``, which needs a concrete ``k``; give it when
+            ``k`` is traced (``B ~ Beta(k, m − k)`` then keeps the marginal exact).
+        fading_waves: correlated fading only: plane waves ``N`` per field.
 
     Returns:
         ``UHFReads`` with ``reader [G, T, J, 4]``, ``rssi/phase/wavelength/mask
@@ -652,6 +815,7 @@ def simulate_reads(
     seqs = image_sequences(_order_for(mp, order))
     _check_inside_room("path", np.asarray(path)[:, :3] if is_concrete(path) else path, mp, len(seqs))
     _check_inside_room("tags", tags, mp, len(seqs))
+    fading = _fading_config(mp, fading_fields, fading_waves)
 
     f32 = jnp.float32
     lam = jnp.atleast_1d(jnp.asarray(wavelengths, f32))
@@ -673,7 +837,28 @@ def simulate_reads(
         num_reads,
         seqs,
         softness,
+        fading,
     )
+
+
+def _fading_config(mp: Multipath, fields: int | None, waves: int) -> tuple[int, int, bool] | None:
+    """``(m, N, k is whole)`` of the correlated fading (static), or None for the independent fading."""
+    if mp.correlation_length is None:
+        return None
+    waves = check_positive_int("fading_waves", waves)
+    k = mp.gamma.k
+    check_shape("multipath.gamma.k", k, ())
+    concrete = is_concrete(k)
+    if fields is None:
+        if not concrete:
+            raise ValueError(
+                "correlated fading with a traced k needs fading_fields (the number m ≥ k of Gaussian fields, a shape)"
+            )
+        fields = math.ceil(float(np.asarray(k)))
+    fields = check_positive_int("fading_fields", fields)
+    if concrete and fields < float(np.asarray(k)):
+        raise ValueError(f"fading_fields must be ≥ k = {float(np.asarray(k))}, got {fields}")
+    return fields, waves, concrete and fields == float(np.asarray(k))
 
 
 def anchor_power_scale(

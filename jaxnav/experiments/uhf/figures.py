@@ -1,6 +1,6 @@
 """[A] §5.2 reproduced: UHF-RFID tag localization from RSSI and phase ([A] Alg. 6) as figures.
 
-Four experiments (:data:`EXPERIMENTS`, run by name with
+Five experiments (:data:`EXPERIMENTS`, run by name with
 :func:`jaxnav.experiments.registry.run`), each a set of curves of the position
 RMSE over time with its 95 % interval over ``R`` seeded runs, and [A]'s value
 beside ours where [A] gives one:
@@ -9,6 +9,11 @@ beside ours where [A] gives one:
   at 0.25, 0.5, 1, 2 and 4 λ from the tag (λ = 0.173 m, [A] §5.2). [A] prints
   no numbers, only the claim: the RMSE grows with the anchor-to-tag distance,
   sharply beyond λ/2.
+* ``fig-5.3-correlated``: the same with the strong preset's fading drawn from
+  the spatially correlated field of :mod:`jaxnav.sim.uhf_reader` (correlation
+  length λ/2), so that the anchor's fading is the tag's when it is close and
+  independent of it beyond λ/2; same cell ids as ``fig-5.3`` (common random
+  numbers: only the fading differs).
 * ``fig-5.5`` ([A] §5.2.1, Fig. 5.5): 3D (the 2 × 3 × 2 m box of [A]),
   light and strong multipath, the three weightings of Alg. 6 (RSSI only,
   phase only, combined), the anchor 0.05 m from the tag.
@@ -94,20 +99,26 @@ FIG_5_3_NOTE = (
 
 
 def _setting_json(s: UHFSetting) -> dict:
-    return {
+    out = {
         "multipath": s.multipath,
         "dims": s.dims,
         "anchor_distance_m": round(s.anchor_distance, 6),
         "anchor_distance_lambda": round(s.anchor_distance / WAVELENGTH, 4),
         "refresh": s.refresh,
     }
+    if s.correlation_length is not None:  # only then: the other experiments' settings keep their keys
+        out["correlation_length_m"] = round(s.correlation_length, 6)
+    return out
 
 
 def _label(setting: dict) -> str:
     refresh = setting.get("refresh", "gaussian")
+    ell = setting.get("correlation_length_m")
     return (
         f"{setting['multipath']}, {setting['dims']}D, anchor {setting['anchor_distance_m']:.3g} m "
-        f"({setting['anchor_distance_lambda']:.2g} λ)" + ("" if refresh == "gaussian" else f", {refresh} refresh")
+        f"({setting['anchor_distance_lambda']:.2g} λ)"
+        + ("" if refresh == "gaussian" else f", {refresh} refresh")
+        + ("" if ell is None else f", fading ℓ = {ell:.3g} m")
     )
 
 
@@ -481,8 +492,9 @@ def _experiment(
         for s in chosen:
             s = replace(s, **QUICK) if quick else s
             weightings = tuple(quick_weightings) if quick and quick_weightings else methods
-            fn = run_once(weightings, s.dims, s.num_particles, s.refresh)
-            # [A]'s Gaussian cells keep the ids of fig-5.5/5.6 (so the same seeded runs): common random numbers
+            fn = run_once(weightings, s.dims, s.num_particles, s.refresh, s.fading_fields)
+            # [A]'s Gaussian cells keep the ids of fig-5.5/5.6 (so the same seeded runs): common random numbers;
+            # so do the correlated-fading cells of fig-5.3's: same tags, anchors, phase noise and filter keys
             cid = f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}" + (
                 "" if s.refresh == "gaussian" else f"|refresh={s.refresh}"
             )
@@ -528,6 +540,26 @@ FIG_5_3 = _experiment(
     quick_settings=(1, 4),
 )
 
+FIG_5_3_CORRELATED = _experiment(
+    "fig-5.3-correlated",
+    "RSSI-only tag localization against the anchor-to-tag distance, strong multipath with spatially correlated "
+    "fading (correlation length λ/2), 3D ([A] Fig. 5.3)",
+    [
+        UHFSetting(multipath="strong", dims=3, anchor_distance=d * WAVELENGTH, correlation_length=WAVELENGTH / 2)
+        for d in ANCHOR_LAMBDAS
+    ],
+    ("rssi",),
+    lambda s, w: (None, FIG_5_3_NOTE),
+    plot_anchor,
+    "fig-5.3 with the fading of the strong preset (Gamma(8, 0.125)) drawn from the spatially correlated field of "
+    "jaxnav.sim.uhf_reader (correlation length l = lambda/2 = 0.0865 m: the anchor's and the tag's fading "
+    "powers are correlated 0.41 at 0.25 lambda apart and 0.016, the floor of 64 waves, at 0.5, 1, 2 and 4 "
+    "lambda) instead of independently for the two tags. Same cell ids as fig-5.3, so the same tags, anchors, "
+    "phase noise and filter keys: only the fading differs. Anchor at 0.25, 0.5, 1, 2, 4 lambda (lambda = 0.173 m, "
+    "[A] §5.2) in a random direction from the tag, inside the box. " + _COMMON_NOTES,
+    quick_settings=(1, 4),
+)
+
 FIG_5_5 = _experiment(
     "fig-5.5",
     "Tag localization in 3D (2 x 3 x 2 m): RSSI, phase, combined, light and strong multipath ([A] Fig. 5.5)",
@@ -563,5 +595,5 @@ UHF_REFRESH = _experiment(
     "of redrawing the whole set from one Gaussian, so the early multimodal posterior keeps its modes. " + _COMMON_NOTES,
 )
 
-EXPERIMENTS = (FIG_5_3, FIG_5_5, FIG_5_6, UHF_REFRESH)
+EXPERIMENTS = (FIG_5_3, FIG_5_3_CORRELATED, FIG_5_5, FIG_5_6, UHF_REFRESH)
 """The UHF experiments (listed by :mod:`jaxnav.experiments.catalog`)."""

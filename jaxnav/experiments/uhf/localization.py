@@ -24,7 +24,10 @@ experiments themselves (Figs. 5.3, 5.5, 5.6 and ``uhf-refresh``) are in
   sampled no coarser), so step ``t`` is at ``time_s = t · Δt`` with
   ``Δt = pass spacing / speed`` (0.2 s in the full variant: 242 steps, 48.2 s).
 * Reads of the tag and of the anchor: :func:`jaxnav.sim.uhf_reader.simulate_reads`
-  with the ``"light"`` or ``"strong"`` preset. ``(k, θ)`` is fitted from all
+  with the ``"light"`` or ``"strong"`` preset, its fading drawn independently for
+  the two tags or, with a setting's ``correlation_length``, from the spatially
+  correlated field of :mod:`jaxnav.sim.uhf_reader` (the anchor and the tag fade
+  together when closer than ``ℓ``). ``(k, θ)`` is fitted from all
   the anchor's reads with :func:`jaxnav.models.uhf_calibration.estimate_gamma`
   (closed form, [A] App. D–E; the defaults below 30 valid reads) using the
   anchor's known ``a`` (:func:`jaxnav.models.uhf_channel.power_scale`).
@@ -147,6 +150,9 @@ class UHFSetting:
         margin: the tag is drawn this far (m) inside the search box.
         refresh: Alg. 6's redraw after resampling: ``"gaussian"`` ([A] §4.3.3) or
             ``"kernel"`` (the regularised filter, ours; see ``uhf-refresh``).
+        correlation_length: ``None`` (the preset's fading, independent for every tag) or
+            ``ℓ`` (m) of the spatially correlated fading
+            (:func:`jaxnav.sim.uhf_reader.correlated_fading`; ``fig-5.3-correlated``).
     """
 
     multipath: str = "light"
@@ -157,10 +163,13 @@ class UHFSetting:
     speed: float = SPEED
     margin: float = MARGIN
     refresh: str = "gaussian"
+    correlation_length: float | None = None
 
     def __post_init__(self) -> None:
         check_choice("multipath", self.multipath, MULTIPATHS)
         check_choice("refresh", self.refresh, REFRESHES)
+        if self.correlation_length is not None:
+            check_positive("correlation_length", self.correlation_length)
         if self.dims not in (2, 3):
             raise ValueError(f"dims must be 2 or 3, got {self.dims!r}")
         check_nonnegative("anchor_distance", self.anchor_distance)
@@ -174,6 +183,14 @@ class UHFSetting:
             raise ValueError(
                 f"margin {self.margin} m leaves no room for the tag in the search box {lo.tolist()}–{hi.tolist()}"
             )
+
+    @property
+    def fading_fields(self) -> int | None:
+        """The number of Gaussian fields of the correlated fading, ``⌈k⌉`` of the preset (None without it):
+        a shape, given to :func:`run_once` because ``k`` is traced in a run."""
+        if self.correlation_length is None:
+            return None
+        return math.ceil(float(S.get_multipath(self.multipath).gamma.k))
 
     @property
     def step_period(self) -> float:
@@ -214,9 +231,12 @@ def run_inputs(s: UHFSetting) -> UHFInputs:
     """The arrays of setting ``s`` (host-side, validated)."""
     lo, hi = S.SEARCH_BOX_A
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    mp = S.get_multipath(s.multipath)
+    if s.correlation_length is not None:
+        mp = S.correlated_fading(mp, s.correlation_length)
     return UHFInputs(
         path=f32(_path(s)),
-        multipath=jax.tree_util.tree_map(f32, S.get_multipath(s.multipath)),
+        multipath=jax.tree_util.tree_map(f32, mp),
         anchor_distance=f32(s.anchor_distance),
         margin=f32(s.margin),
         filter=rt.default_params(box_lo=lo, box_hi=hi),
@@ -266,7 +286,7 @@ def draw_scene(key: jax.Array, inputs: UHFInputs) -> Scene:
     return Scene(tag, offset, anchor_position(k_anc, tag, inputs.anchor_distance, box_lo, box_hi))
 
 
-def _simulate_and_filter(key, inputs: UHFInputs, configs: Sequence[rt.RFIDTagConfig]):
+def _simulate_and_filter(key, inputs: UHFInputs, configs: Sequence[rt.RFIDTagConfig], fading_fields=None):
     """``(scene, fit, reads of the tag, [trace per config])`` of one run (keys: :func:`_keys`)."""
     _, _, _, k_sim, k_init, k_run = _keys(key)
     scene = draw_scene(key, inputs)
@@ -276,6 +296,7 @@ def _simulate_and_filter(key, inputs: UHFInputs, configs: Sequence[rt.RFIDTagCon
         jnp.stack([scene.tag, scene.anchor]),
         jnp.stack([scene.offset, jnp.zeros_like(scene.offset)]),
         multipath=inputs.multipath,
+        fading_fields=fading_fields,
     )
     tag_reads = jax.tree_util.tree_map(lambda x: x[0], reads)
     anchor_reads = jax.tree_util.tree_map(lambda x: x[1], reads)
@@ -297,9 +318,15 @@ def position_error(estimate: jax.Array, tag: jax.Array, dims: int) -> jax.Array:
 
 @functools.cache
 def run_once(
-    weightings: tuple[str, ...], dims: int, num_particles: int, refresh: str = "gaussian"
+    weightings: tuple[str, ...],
+    dims: int,
+    num_particles: int,
+    refresh: str = "gaussian",
+    fading_fields: int | None = None,
 ) -> Callable[..., dict]:
     """``(key, inputs: UHFInputs) -> {field: array}`` of one seeded run (cached: one function per arguments).
+
+    ``fading_fields``: :attr:`UHFSetting.fading_fields` of settings with correlated fading (None otherwise).
 
     Fields: ``err_<weighting>`` ``[T]`` position error over time (m) for each of
     ``weightings``; ``gamma_k``, ``gamma_theta`` the anchor's fit and
@@ -321,7 +348,7 @@ def run_once(
     ]
 
     def fn(key: jax.Array, inputs: UHFInputs) -> dict:
-        scene, fit, tag_reads, traces = _simulate_and_filter(key, inputs, configs)
+        scene, fit, tag_reads, traces = _simulate_and_filter(key, inputs, configs, fading_fields)
         out = {f"err_{w}": position_error(tr.estimate, scene.tag, dims) for w, tr in zip(weightings, traces)}
         out.update(
             gamma_k=fit.params.k,

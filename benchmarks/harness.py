@@ -18,7 +18,8 @@ Floors
 ------
 ``floor_s = bytes that must move once / bandwidth``, the bandwidth being
 measured in the same run by :func:`measure_bandwidth` (a copy of a 256 MiB
-float64 NumPy array: bytes read + bytes written over the best time).
+float64 NumPy array: bytes read + bytes written over the best time); in a
+preset run (``--preset``) by :func:`measure_device_bandwidth` on JAX's device.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ __all__ = [
     "skipped_row",
     "guarded",
     "measure_bandwidth",
+    "measure_device_bandwidth",
+    "device_info",
     "machine_info",
     "versions",
     "write_json",
@@ -219,7 +222,11 @@ def guarded(
       (``other_load_cores``). Above ``ctx.disturbed`` cores the measurement is
       repeated (``ctx.retries`` times, after waiting for the machine to be
       quiet) and the least disturbed attempt is kept (``attempt`` says which).
+    * An implementation the run leaves out (:meth:`Context.wants`, a preset's
+      ``implementations``) gives no row at all and ``fn`` is not called.
     """
+    if not ctx.wants(implementation):
+        return []
     best: tuple[list[dict], float | None] | None = None
     for attempt in range(1 + ctx.retries):
         if attempt > 0:
@@ -263,6 +270,9 @@ class Context:
         retry_wait_s: longest wait for a quiet machine before a re-measurement.
         disturbed: cores used by other processes above which a measurement is disturbed.
         notes: free-text notes collected during the run (written to the JSON).
+        implementations: the implementations measured (None: all); the others give no row.
+        sizes: the sizes this run measures, per workload name (set by ``benchmarks.run``; empty: each
+            workload's own ``sizes_for(quick)``).
     """
 
     quick: bool
@@ -272,6 +282,8 @@ class Context:
     retry_wait_s: float = 300.0
     disturbed: float = 0.2
     notes: list[str] = field(default_factory=list)
+    implementations: frozenset[str] | None = None
+    sizes: dict[str, list[dict]] = field(default_factory=dict)
     _compile_times: dict = field(default_factory=dict, repr=False)
 
     def compile_s(self, key: Any, jitted: Any, *args: Any, **kwargs: Any) -> float:
@@ -283,6 +295,14 @@ class Context:
         if key not in self._compile_times:
             self._compile_times[key], _ = time_compile(jitted, *args, **kwargs)
         return self._compile_times[key]
+
+    def wants(self, implementation: str) -> bool:
+        """Whether this run measures ``implementation`` (every one unless ``implementations`` is set)."""
+        return self.implementations is None or implementation in self.implementations
+
+    def sizes_of(self, workload: Any) -> list[dict]:
+        """The sizes this run measures for ``workload`` (a :class:`benchmarks.workloads.Workload`)."""
+        return list(self.sizes.get(workload.name) or workload.sizes_for(self.quick))
 
     def reps(self, default: int) -> int:
         """Number of timed repeats: ``--repeats`` if given, else ``default``."""
@@ -389,6 +409,74 @@ def measure_bandwidth(nbytes: int = 256 * 2**20, repeats: int = 7) -> dict:
         "method": f"np.copyto of a {n * 8 / 2**20:.0f} MiB float64 array, (read + write) / best of {repeats}",
         "copy_best_s": best,
         "copy_median_s": float(statistics.median(samples)),
+    }
+
+
+def measure_device_bandwidth(nbytes: int | None = None, repeats: int = 10) -> dict:
+    """Memory bandwidth of JAX's default device, measured with jitted passes over a large float32 array.
+
+    ``copy``: ``x + 1`` (reads and writes the array: 2 · ``nbytes`` moved), ``reduce``: ``sum(x)``
+    (reads it once); each compiled, called twice untimed, then timed ``repeats`` times with
+    ``block_until_ready``; bytes moved / best time. ``nbytes`` defaults to 1 GiB on an accelerator
+    (so that one call lasts long against its launch, ~10 µs) and 256 MiB on a CPU. The copy's
+    bandwidth is the one the run's floors use (``bandwidth_bytes_per_s``).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    device = jax.devices()[0]
+    if nbytes is None:
+        nbytes = 256 * 2**20 if device.platform == "cpu" else 2**30
+    n = nbytes // 4
+    x = jax.block_until_ready(jnp.ones((n,), jnp.float32))
+    passes = {
+        "copy": (jax.jit(lambda a: a + 1.0), 2 * n * 4),
+        "reduce": (jax.jit(lambda a: jnp.sum(a)), n * 4),
+    }
+    out: dict = {}
+    for name, (fn, moved) in passes.items():
+        for _ in range(2):
+            jax.block_until_ready(fn(x))
+        samples = []
+        with _GcOff():
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(x))
+                samples.append(time.perf_counter() - t0)
+        best = min(samples)
+        out[f"{name}_GB_per_s"] = moved / best / 1e9
+        out[f"{name}_best_s"] = best
+    del x
+    return {
+        "bandwidth_bytes_per_s": out["copy_GB_per_s"] * 1e9,
+        "bandwidth_GB_per_s": out["copy_GB_per_s"],
+        **out,
+        "method": (
+            f"measured: jitted x + 1 (read + write) and sum(x) (read) of a {n * 4 / 2**20:.0f} MiB float32 array "
+            f"on {device.platform}:{device.id}, bytes moved / best of {repeats} after 2 warm-up calls"
+        ),
+    }
+
+
+def device_info() -> dict:
+    """JAX's default device: ``kind`` (``device_kind``), ``platform``, the number of devices and, where
+    ``memory_stats()`` reports it, ``memory_bytes``: the allocator's ``bytes_limit`` (on a GPU JAX
+    preallocates 75 % of the card by default, so this is what JAX may use, not the card's size);
+    None where the backend reports nothing (XLA:CPU)."""
+    import jax
+
+    device = jax.devices()[0]
+    try:
+        stats = device.memory_stats()
+    except Exception:  # not implemented on every backend
+        stats = None
+    limit = (stats or {}).get("bytes_limit")
+    return {
+        "kind": device.device_kind,
+        "platform": device.platform,
+        "count": len(jax.devices()),
+        "memory_bytes": int(limit) if limit is not None else None,
+        "memory_source": "memory_stats()['bytes_limit']" if limit is not None else "memory_stats() reports none",
     }
 
 

@@ -96,6 +96,10 @@ def tables(payload: dict) -> str:
         f"{m.get('bandwidth_GB_per_s', 0):.1f} GB/s; jaxnav {payload.get('versions', {}).get('jaxnav_git', '')}, "
         f"jax {payload.get('versions', {}).get('jax', '?')}. Command: `{payload.get('options', {}).get('command', '')}`."
     )
+    if m.get("device"):  # a preset run: the rows time JAX's device, the floors use its measured bandwidth
+        from benchmarks.plot import machine_line
+
+        out[-1] += f" Device: {machine_line(payload)}; the floors use that bandwidth."
     for workload in sorted({r["workload"] for r in rows}):
         wrows = [r for r in rows if r["workload"] == workload]
         schemes = []

@@ -10,7 +10,7 @@ import os
 from collections import defaultdict
 from collections.abc import Sequence
 
-__all__ = ["plot_workload", "plot_all", "plot_w1", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
+__all__ = ["plot_workload", "plot_all", "machine_line", "plot_w1", "plot_s1", "plot_s2", "plot_w5", "plot_u1"]
 
 _STYLE = {
     # implementation -> (colour, marker)
@@ -425,13 +425,30 @@ def plot_u1(rows: Sequence[dict], path: str, title: str = "U1", subtitle: str = 
 _CUSTOM = {"W1": plot_w1, "S1": plot_s1, "S2": plot_s2, "W5": plot_w5, "U1": plot_u1}
 
 
+def machine_line(payload: dict) -> str:
+    """What ran the rows, for a plot's subtitle: the CPU, or for a preset run JAX's device, its measured
+    bandwidth and memory, and the scale-down factor where the sizes were divided."""
+    m = payload.get("machine", {})
+    dev = m.get("device")
+    if not dev:
+        return f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, copy bandwidth {m.get('bandwidth_GB_per_s', 0):.1f} GB/s"
+    mem = dev.get("memory_bytes")
+    line = (
+        f"{dev.get('kind', '?')} ({dev.get('platform', '?')}), measured bandwidth {dev.get('bandwidth_GB_per_s', 0):.1f}"
+        f" GB/s, memory {'not reported' if mem is None else f'{mem / 2**30:.0f} GiB'}"
+    )
+    if dev.get("platform") == "cpu":
+        line += f", {m.get('cores', '?')} cores"
+    opts = payload.get("options", {})
+    if opts.get("scale_down"):
+        line += f"; sizes ÷ {opts.get('scale_factor')}"
+    return line
+
+
 def plot_all(payload: dict, json_path: str, workloads: dict) -> list[str]:
     """One PNG per workload in ``payload['rows']``, named ``<json stem>_<workload>.png``."""
     stem = os.path.splitext(os.path.abspath(json_path))[0]
-    m = payload.get("machine", {})
-    subtitle = (
-        f"{m.get('cpu', '?')}, {m.get('cores', '?')} cores, copy bandwidth {m.get('bandwidth_GB_per_s', 0):.1f} GB/s"
-    )
+    subtitle = machine_line(payload)
     out = []
     names = sorted({r["workload"] for r in payload["rows"]})
     for name in names:

@@ -326,7 +326,7 @@ def run_rows(
                 _add_ratio(r)
                 rows.append(r)
     wl = REGISTRY.get(NAME)
-    if wl is not None and n == int(wl.sizes_for(ctx.quick)[-1]["tags"]):
+    if wl is not None and n == int(ctx.sizes_of(wl)[-1]["tags"]):
         measured = [
             {"workload": NAME, "method": m, "mode": mo, "size": {"tags": t}, "median_s": v}
             for (m, mo), tab in _MEDIANS.items()

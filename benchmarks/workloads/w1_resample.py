@@ -478,7 +478,8 @@ def run(ctx: Context, size: dict) -> list[dict]:
     n = int(size["N"])
     x64_before = bool(jax.config.jax_enable_x64)
     floors = {dt: ctx.floor(floor_bytes(n, dt)) for dt in DTYPES}
-    planned = _planned(n)
+    # implementations the run leaves out (a preset) give no row, not even a skipped one
+    planned = [p for p in _planned(n) if ctx.wants(p[0])]
     why = _memory_reason(
         f"N={_label(n)} ({INPUT_BYTES} B of inputs + up to {WORK_BYTES} B per particle)", size_bytes(n)
     )
@@ -502,7 +503,8 @@ def run(ctx: Context, size: dict) -> list[dict]:
     bj, bj_why = optional_import("blackjax.smc.resampling")
     mc, mc_why = optional_import("filterpy.monte_carlo")
     rs, rs_why = optional_import("particles.resampling")
-    if rs is not None and not _particles_warm:  # numba compiles inverse_cdf on the first call: not timed
+    # numba compiles inverse_cdf on the first call: not timed
+    if rs is not None and not _particles_warm and ctx.wants("particles"):
         np.random.seed(6)
         for scheme in SCHEMES:
             getattr(rs, scheme)(np.full(10, 0.1))

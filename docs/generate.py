@@ -7,7 +7,8 @@
 * ``reproductions/``: one page per registered experiment, its table and figure made from
   ``benchmarks/results/experiments/NAME.json`` by the experiment's own ``markdown`` and ``plot``,
   with a count of where the thesis value falls against our 95 % interval, and the hand-written
-  notes of ``docs/reproductions/notes/NAME.md`` where there are any;
+  notes of ``docs/reproductions/notes/NAME.md`` where there are any; and the page "Where we differ from
+  the theses" (``docs/differences.py``), its numbers and verdicts read from the same results;
 * ``benchmarks/``: the tables (:func:`benchmarks.markdown.tables`) and plots
   (:func:`benchmarks.plot.plot_all`) of every results file in ``benchmarks/results/``.
 
@@ -334,16 +335,40 @@ def _intro(docs: str, name: str) -> str:
         return f.read().strip() + "\n\n"
 
 
+def write_differences(out: str, root: str, docs: str) -> None:
+    """``reproductions/differences.md``: the claims the experiments do not reproduce (``docs/differences.py``)."""
+    sys.path.insert(0, docs)
+    try:
+        differences = importlib.import_module("differences")
+    finally:
+        sys.path.remove(docs)
+    results = {}
+    files = [(n, f"{n}.json") for n in differences.needed_experiments()]
+    files += [(f"{n}.runs", f"{n}.runs.json") for n in differences.RUNS_NEEDED]
+    experiments = os.path.join(root, "benchmarks", "results", "experiments")
+    files += [
+        (n, f"{n}.json")
+        for n in differences.OPTIONAL_EXPERIMENTS
+        if os.path.exists(os.path.join(experiments, f"{n}.json"))
+    ]
+    for key, file in files:
+        with open(os.path.join(experiments, file)) as f:
+            results[key] = json.load(f)
+    _write(os.path.join(out, "reproductions", "differences.md"), differences.page(results))
+
+
 def write_reproduction_index(out: str, docs: str, index) -> None:
     lines = [
         _intro(docs, "reproductions/intro.md"),
+        "Where our results and the theses' part, and what the experiments say about why: "
+        "[Where we differ from the theses](differences.md).\n\n",
         "| experiment | what | runs per setting | thesis values inside / above / below our interval |\n",
         "| --- | --- | --- | --- |\n",
     ]
     for name, title, runs, (n, inside, above, below) in index:
         counts = f"{inside} / {above} / {below} of {n}" if n else "–"
         lines.append(f"| [{name}]({name}.md) | {title} | {runs} | {counts} |\n")
-    lines.append("\n```{toctree}\n:hidden:\n\n" + "".join(f"{n}\n" for n, *_ in index) + "```\n")
+    lines.append("\n```{toctree}\n:hidden:\n\ndifferences\n" + "".join(f"{n}\n" for n, *_ in index) + "```\n")
     _write(os.path.join(out, "reproductions", "index.md"), "".join(lines))
 
 
@@ -387,6 +412,7 @@ def main(docs: str, root: str) -> None:
     out = os.path.join(docs, "_generated")
     write_api(out)
     write_reproduction_index(out, docs, write_reproductions(out, root, docs))
+    write_differences(out, root, docs)
     write_benchmarks(out, root, docs)
 
 

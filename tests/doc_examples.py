@@ -25,6 +25,7 @@ def load_docs_script(name: str, module_name: str | None = None):
     """``docs/NAME.py`` (``generate``, ``check_links``) imported as a module, under ``module_name``."""
     spec = importlib.util.spec_from_file_location(module_name or name, DOCS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # a dataclass looks its module up while the module runs
     spec.loader.exec_module(module)
     return module
 

@@ -1,0 +1,313 @@
+"""The page "Where we differ from the theses", made from the committed results.
+
+Each :class:`Claim` is a result of [A] or [W] that jaxnav's experiments do not reproduce. Its numbers
+are read from ``benchmarks/results/experiments/NAME.json`` by a small function, never typed in;
+its verdict is computed from them by the claim's criterion (``holds``), so a rerun that reproduced
+the claim would turn the verdict without an edit. What has been tried to explain the difference
+(another reading of the thesis, another simulator) is listed with the experiment that tried it, and
+the explanation as far as the experiments go.
+
+Run by ``generate.py`` (``write_differences``); ``page(results)`` is pure, for the tests.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+# (label, {"mean": float, "ci95": [low, high]}) pairs: what a claim shows of our results
+Figures = list[tuple[str, dict]]
+Results = dict[str, dict]
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One result of a thesis, our numbers for it and the verdict.
+
+    Attributes:
+        source: where the thesis states it, e.g. ``"[W] Table 4.1"``.
+        thesis: what the thesis reports (its numbers in the text).
+        experiments: the registered experiments whose committed results the figures come from.
+        figures: ``results -> [(label, summary)]``: our means with their 95 % intervals.
+        criterion: in words, what our figures must show for the claim to hold.
+        holds: ``figures -> bool``: the criterion computed.
+        tried: what has been tried to explain the difference (Markdown, or ``results -> str``; empty: nothing yet).
+        why: the explanation as far as the experiments go (Markdown), or ``results -> str``.
+        units: of the figures (``"mm"``, ``"m"``).
+        readings: the setting of ``ps-slam-readings`` that runs the claim's setting under each reading of
+            PS-SLAM (its paired differences PS − PF are listed when its result is committed), or ``None``.
+    """
+
+    source: str
+    thesis: str
+    experiments: tuple[str, ...]
+    figures: Callable[[Results], Figures]
+    criterion: str
+    holds: Callable[[Figures], bool]
+    tried: str | Callable[[Results], str]
+    why: str | Callable[[Results], str]
+    units: str = "mm"
+    readings: str | None = None
+
+
+def _row(result: dict, method: str, column: str = "dr_mm", **setting) -> dict:
+    """The summary ``column`` of the one row of ``method`` (and ``setting``'s fields) of a table result."""
+    rows = [
+        r for r in result["rows"] if r["method"] == method and all(r["setting"].get(k) == v for k, v in setting.items())
+    ]
+    if len(rows) != 1:
+        raise ValueError(f"{result['experiment']}: {len(rows)} rows of {method} {setting}, expected one")
+    return rows[0][column]
+
+
+def _curve_point(result: dict, method: str, x: float, quantity: str = "robot error dr (mm)") -> dict:
+    """``{"mean", "ci95"}`` of a figure result's curve of ``method`` at ``x``."""
+    for c in result["curves"]:
+        if c["method"] == method and c["quantity"] == quantity and x in c["x"]:
+            i = c["x"].index(x)
+            return {"mean": c["mean"][i], "ci95": c["ci95"][i]}
+    raise ValueError(f"{result['experiment']}: no {method} point at {x} of {quantity!r}")
+
+
+def _uhf_final(result: dict, method: str, **setting) -> dict:
+    return _row(result, method, "final_rmse_m", **setting)
+
+
+def _below(a: dict, b: dict) -> bool:
+    """``a``'s 95 % interval lies wholly below ``b``'s."""
+    return a["ci95"][1] < b["ci95"][0]
+
+
+def _inside(value: float, s: dict) -> bool:
+    return s["ci95"][0] <= value <= s["ci95"][1]
+
+
+def _tables_4(name: str) -> Callable[[Results], Figures]:
+    def figures(results: Results) -> Figures:
+        r = results[name]
+        return [(m, _row(r, k)) for m, k in (("PS-SLAM", "ps_slam"), ("PF-SLAM", "pf_slam"), ("FastSLAM", "fastslam"))]
+
+    return figures
+
+
+_READINGS_TRIED = (
+    "Every choice Algorithm 2 leaves open is an option of `PSSLAMConfig` ({mod}`jaxnav.slam.ps_slam`, "
+    '"Readings"): what the robot is weighted against, whether the smoothed value is fed back, whether a '
+    "particle's history moves with it, smoothing before or after resampling, where a new tag is drawn. "
+    "Their ablation against PF-SLAM on the same seeds, `ps-slam-readings`, has no committed result yet."
+)
+
+
+CLAIMS = (
+    Claim(
+        source="[W] Table 4.1",
+        thesis="PS-SLAM's robot error is below PF-SLAM's with 300 mm readers on a rectangle: 53.8 against 82.1 mm.",
+        experiments=("table-4.1",),
+        figures=_tables_4("table-4.1"),
+        criterion="PS-SLAM's interval of the robot error dr lies below PF-SLAM's.",
+        holds=lambda f: _below(f[0][1], f[1][1]),
+        tried=_READINGS_TRIED,
+        why="Not known yet. The readings' ablation measures whether any reading the text allows closes the gap.",
+        readings="table-4.1 / fig-4.4 300 mm",
+    ),
+    Claim(
+        source="[W] Table 4.2",
+        thesis="PS-SLAM's robot error is below PF-SLAM's with 300 mm readers on a random path: 29.1 against 66.7 mm.",
+        experiments=("table-4.2",),
+        figures=_tables_4("table-4.2"),
+        criterion="PS-SLAM's interval of the robot error dr lies below PF-SLAM's.",
+        holds=lambda f: _below(f[0][1], f[1][1]),
+        tried=_READINGS_TRIED,
+        why="Not known yet, as for Table 4.1.",
+        readings="table-4.2",
+    ),
+    Claim(
+        source="[W] Fig. 4.4",
+        thesis="PS-SLAM and PF-SLAM are alike below 180 mm readers; above, PS-SLAM's robot error is smaller.",
+        experiments=("fig-4.4",),
+        figures=lambda r: [
+            (f"{m} at {x:g} mm", _curve_point(r["fig-4.4"], k, x))
+            for x in (300.0, 500.0)
+            for m, k in (("PS-SLAM", "ps_slam"), ("PF-SLAM", "pf_slam"))
+        ],
+        criterion="at 500 mm, PS-SLAM's interval of the robot error lies below PF-SLAM's.",
+        holds=lambda f: _below(f[2][1], f[3][1]),
+        tried=_READINGS_TRIED,
+        why="Not known yet, as for Table 4.1; our gap grows with the reader's side.",
+        readings="fig-4.4 500 mm",
+    ),
+    Claim(
+        source="[W] Tables 4.1, 4.2",
+        thesis="FastSLAM's robot error is far above both: 420.8 mm (rectangle) and 245.7 mm (random path).",
+        experiments=("table-4.1", "table-4.2"),
+        figures=lambda r: [
+            ("FastSLAM, rectangle", _row(r["table-4.1"], "fastslam")),
+            ("FastSLAM, random path", _row(r["table-4.2"], "fastslam")),
+        ],
+        criterion="the thesis's values lie inside our intervals.",
+        holds=lambda f: _inside(420.8, f[0][1]) and _inside(245.7, f[1][1]),
+        tried="",
+        why="Not known yet. jaxnav's FastSLAM takes the footprint as a Gaussian of variance s²/12 about the "
+        "reader's centre; [W] does not say how its FastSLAM-RFID modelled the detection.",
+    ),
+    Claim(
+        source="[W] Fig. 3.7",
+        thesis="PF-SLAM's robot error falls as robot particles grow.",
+        experiments=("fig-3.7",),
+        figures=lambda r: [
+            (f"PF-SLAM, {n:g} robot particles", _curve_point(r["fig-3.7"], "pf_slam", n)) for n in (100.0, 4000.0)
+        ],
+        criterion="the interval at 4,000 robot particles lies below the interval at 100.",
+        holds=lambda f: _below(f[1][1], f[0][1]),
+        tried="",
+        why="Not yet measured: the tag particles (100), the jitter or the reader's resolution may bound it.",
+    ),
+    Claim(
+        source="[A] Fig. 5.3",
+        thesis="The RSSI-only error grows with the anchor-to-tag distance, sharply beyond λ/2.",
+        experiments=("fig-5.3", "fig-5.3-correlated"),
+        figures=lambda r: [
+            (f"{label}, anchor at {d:g} λ", _uhf_final(r[name], "rssi", anchor_distance_lambda=d))
+            for name, label in (("fig-5.3", "independent fading"), ("fig-5.3-correlated", "correlated fading"))
+            for d in (0.25, 4.0)
+        ],
+        criterion="with either fading, the final RMSE at 4 λ lies above the one at 0.25 λ.",
+        holds=lambda f: _below(f[0][1], f[1][1]) or _below(f[2][1], f[3][1]),
+        tried="Spatially correlated fading (correlation length λ/2) in the simulator: "
+        "[fig-5.3-correlated](fig-5.3-correlated.md).",
+        why="The filter takes from the anchor only the pooled (k, θ) of all its reads; in a statistically "
+        "homogeneous field that distribution is the same wherever the anchor is, correlated or not.",
+        units="m",
+    ),
+    Claim(
+        source="[A] Fig. 5.5",
+        thesis="With light multipath, every weighting ends below 0.20 m.",
+        experiments=("fig-5.5", "uhf-refresh"),
+        figures=lambda r: [
+            (m, _uhf_final(r["fig-5.5"], k, multipath="light"))
+            for m, k in (("RSSI", "rssi"), ("phase", "phase"), ("combined", "combined"))
+        ],
+        criterion="every weighting's mean final RMSE is below 0.20 m.",
+        holds=lambda f: all(s["mean"] < 0.20 for _, s in f),
+        tried=lambda r: _refresh_tried(r["uhf-refresh"]),
+        why=lambda r: _lost_runs(r["fig-5.5"], "combined", "light") + " " + _lost_run_path(r["fig-5.5.runs"]),
+        units="m",
+    ),
+)
+"""The theses' results jaxnav does not reproduce, in the order of the pages."""
+
+
+def _lost_runs(result: dict, method: str, multipath: str) -> str:
+    """The lost runs and the median final error of ``method`` under ``multipath`` (a UHF result's diagnostics)."""
+    (d,) = [d for d in result["diagnostics"] if d["setting"]["multipath"] == multipath]
+    lost, median = d["final_lost_runs"][method], d["final_median_m"][method]
+    return (
+        f"Lost runs of the {method} weighting: {lost} of {result['runs']} (the median final error is "
+        f"{median:.3f} m); the RMSE is ruled by them."
+    )
+
+
+def _lost_run_path(runs: dict, cell: str = "light|3d|anchor=0.05", step: int = 20) -> str:
+    """The error paths of the run whose combined weighting ends worst, from the sweep's per-run values."""
+    values = runs["cells"][cell]
+    final = [path[-1] for path in values["err_combined"]]
+    i = max(range(len(final)), key=final.__getitem__)
+    path = {w: values[f"err_{w}"][i] for w in ("combined", "rssi", "phase")}
+    return (
+        f"In that run (run {i} of the cell `{cell}`) the combined filter's error is {path['combined'][step]:.2f} m "
+        f"after {step} steps and {path['combined'][-1]:.2f} m at the end, while the RSSI-only and phase-only "
+        f"filters of the same run end at {path['rssi'][-1]:.3f} and {path['phase'][-1]:.3f} m: the combined "
+        "set settled within its first steps far from the tag and stayed there under [A]'s Gaussian refresh."
+    )
+
+
+def _refresh_tried(result: dict) -> str:
+    """The combined weighting under light multipath with [A]'s Gaussian refresh and with the kernel refresh."""
+    parts = []
+    for refresh in ("gaussian", "kernel"):
+        s = _uhf_final(result, "combined", multipath="light", refresh=refresh)
+        (d,) = [
+            d
+            for d in result["diagnostics"]
+            if d["setting"]["multipath"] == "light" and d["setting"]["refresh"] == refresh
+        ]
+        parts.append(f"{refresh} refresh {_summary(s, 'm')}, {d['final_lost_runs']['combined']} runs lost")
+    return (
+        f"The kernel (regularised) refresh in place of [A]'s Gaussian one, in [uhf-refresh](uhf-refresh.md) "
+        f"({result['runs']} runs, light multipath, combined weighting): {'; '.join(parts)}. "
+        "A wider prior: not yet tried."
+    )
+
+
+def _readings_lines(results: Results, setting: str) -> list[str]:
+    """Each reading's paired difference PS − PF of the robot error in ``ps-slam-readings``'s ``setting``."""
+    (s,) = [s for s in results["ps-slam-readings"]["settings"] if s["setting_label"] == setting]
+    return [
+        f"- PS-SLAM, {r['row']} − PF-SLAM: {_summary(r['dr_mm_minus_pf'], 'mm')}\n"
+        for r in s["rows"]
+        if "dr_mm_minus_pf" in r
+    ]
+
+
+def _number(x: float, units: str) -> str:
+    digits = 1 if units == "mm" else 3
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _summary(s: dict, units: str) -> str:
+    lo, hi = s["ci95"]
+    return f"{_number(s['mean'], units)} [{_number(lo, units)}, {_number(hi, units)}] {units}"
+
+
+def page(results: Results) -> str:
+    """The Markdown of the page from ``results`` (experiment name → its committed JSON)."""
+    lines = [
+        "# Where we differ from the theses\n\n",
+        "The claims of [A] and [W] that jaxnav's experiments do not reproduce. Each number below is our "
+        "mean with its 95 % interval, read from the committed result it links to; each verdict is "
+        "computed from those numbers by the criterion stated beside it, so a new result can turn it. "
+        "The theses report one run per setting: a thesis value outside our interval may be that run's "
+        "luck as much as a difference of method, which is why the criteria compare our own methods "
+        "where the claim is a comparison.\n\n",
+        "| claim | thesis | verdict |\n| --- | --- | --- |\n",
+    ]
+    verdicts = []
+    for claim in CLAIMS:
+        figures = claim.figures(results)
+        holds = claim.holds(figures)
+        verdicts.append((claim, figures, holds))
+        anchor = claim.source.lower().replace("[", "").replace("]", "").replace(".", "").replace(",", "")
+        anchor = "-".join(anchor.split())
+        lines.append(
+            f"| [{claim.source}](#{anchor}) | {claim.thesis} | {'reproduced' if holds else 'not reproduced'} |\n"
+        )
+    lines.append("\n")
+    for claim, figures, holds in verdicts:
+        links = ", ".join(f"[{n}]({n}.md)" for n in claim.experiments)
+        lines.append(f"## {claim.source}\n\n")
+        lines.append(f"**The thesis:** {claim.thesis}\n\n**Ours** (from {links}):\n\n")
+        lines += [f"- {label}: {_summary(s, claim.units)}\n" for label, s in figures]
+        verdict = "reproduced" if holds else "not reproduced"
+        lines.append(f"\n**Verdict: {verdict}.** The claim holds if {claim.criterion}\n\n")
+        tried = claim.tried(results) if callable(claim.tried) else claim.tried
+        lines.append(f"**Tried:** {tried or 'nothing yet.'}\n\n")
+        if claim.readings is not None and "ps-slam-readings" in results:
+            lines.append("The robot error under each reading, paired by seed (negative: PS-SLAM better):\n\n")
+            lines += _readings_lines(results, claim.readings) + ["\n"]
+        why = claim.why(results) if callable(claim.why) else claim.why
+        lines.append(f"**Why, so far:** {why}\n\n")
+    return "".join(lines)
+
+
+def needed_experiments() -> list[str]:
+    """The experiments whose results the page reads."""
+    return sorted({n for c in CLAIMS for n in c.experiments})
+
+
+OPTIONAL_EXPERIMENTS = ("ps-slam-readings",)
+"""Experiments whose results the page shows where they are committed."""
+
+
+RUNS_NEEDED = ("fig-5.5",)
+"""Experiments whose per-run values (``NAME.runs.json``, as ``results["NAME.runs"]``) the page reads."""

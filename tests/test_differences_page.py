@@ -1,0 +1,80 @@
+"""The page "Where we differ from the theses" (docs/differences.py): its numbers come from the committed
+results and its verdicts from those numbers, so a result that reproduced a claim would turn its verdict."""
+
+from __future__ import annotations
+
+import copy
+import json
+
+import pytest
+
+from tests import doc_examples
+
+RESULTS = doc_examples.ROOT / "benchmarks" / "results" / "experiments"
+
+
+@pytest.fixture(scope="module")
+def differences():
+    return doc_examples.load_docs_script("differences")
+
+
+@pytest.fixture(scope="module")
+def committed(differences):
+    results = {n: json.loads((RESULTS / f"{n}.json").read_text()) for n in differences.needed_experiments()}
+    results |= {f"{n}.runs": json.loads((RESULTS / f"{n}.runs.json").read_text()) for n in differences.RUNS_NEEDED}
+    return results
+
+
+def test_every_claim_reads_registered_experiments(differences):
+    from jaxnav.experiments import registry
+
+    names = set(registry.names())
+    for claim in differences.CLAIMS:
+        assert set(claim.experiments) <= names, claim.source
+
+
+def test_the_page_shows_the_committed_numbers(differences, committed):
+    text = differences.page(committed)
+    ps = next(r for r in committed["table-4.1"]["rows"] if r["method"] == "ps_slam")["dr_mm"]
+    assert f"PS-SLAM: {ps['mean']:.1f} [{ps['ci95'][0]:.1f}, {ps['ci95'][1]:.1f}] mm" in text
+    for claim in differences.CLAIMS:
+        assert f"## {claim.source}\n" in text
+    assert text.count("| not reproduced |") + text.count("| reproduced |") == len(differences.CLAIMS)
+
+
+def test_a_result_that_reproduces_a_claim_turns_its_verdict(differences, committed):
+    """Table 4.1 with PS-SLAM's interval moved below PF-SLAM's: that claim, and only it, reads "reproduced"."""
+    results = copy.deepcopy(committed)
+    rows = {r["method"]: r for r in results["table-4.1"]["rows"]}
+    pf_low = rows["pf_slam"]["dr_mm"]["ci95"][0]
+    rows["ps_slam"]["dr_mm"] = {"mean": pf_low - 10.0, "ci95": [pf_low - 12.0, pf_low - 8.0], "paper": 53.8}
+    before = differences.page(committed)
+    after = differences.page(results)
+    assert after.count("| reproduced |") == before.count("| reproduced |") + 1
+    assert (
+        "[[W] Table 4.1](#w-table-41) | PS-SLAM's robot error is below PF-SLAM's with 300 mm readers on a "
+        "rectangle: 53.8 against 82.1 mm. | reproduced |" in after
+    )
+
+
+def test_the_readings_differences_are_listed_where_their_result_is_committed(differences, committed):
+    """A ``ps-slam-readings`` result adds, under each PS-SLAM claim, every reading's paired difference
+    PS − PF of that claim's setting; without one the page lists none."""
+    assert "− PF-SLAM:" not in differences.page(committed)
+    settings = {c.readings for c in differences.CLAIMS if c.readings is not None}
+    assert settings == {"table-4.1 / fig-4.4 300 mm", "table-4.2", "fig-4.4 500 mm"}
+
+    def row(name, mean):
+        return {"row": name, "dr_mm_minus_pf": {"mean": mean, "ci95": [mean - 1.0, mean + 1.0]}}
+
+    readings = {
+        "settings": [
+            {"setting_label": label, "rows": [{"row": "PF-SLAM"}, row("default", 10.0 + i), row("feedback", -2.5 - i)]}
+            for i, label in enumerate(sorted(settings))
+        ]
+    }
+    text = differences.page({**committed, "ps-slam-readings": readings})
+    section = text.split("## [W] Table 4.2\n")[1].split("\n## ")[0]
+    i = sorted(settings).index("table-4.2")
+    assert f"PS-SLAM, feedback − PF-SLAM: {-2.5 - i:.1f} [{-3.5 - i:.1f}, {-1.5 - i:.1f}] mm" in section
+    assert f"PS-SLAM, default − PF-SLAM: {10.0 + i:.1f}" in section

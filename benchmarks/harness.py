@@ -435,15 +435,7 @@ def measure_device_bandwidth(nbytes: int | None = None, repeats: int = 10) -> di
     }
     out: dict = {}
     for name, (fn, moved) in passes.items():
-        for _ in range(2):
-            jax.block_until_ready(fn(x))
-        samples = []
-        with _GcOff():
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                jax.block_until_ready(fn(x))
-                samples.append(time.perf_counter() - t0)
-        best = min(samples)
+        best = time_calls(lambda fn=fn, x=x: jax.block_until_ready(fn(x)), repeats=repeats, warmup=2).min_s
         out[f"{name}_GB_per_s"] = moved / best / 1e9
         out[f"{name}_best_s"] = best
     del x

@@ -35,14 +35,25 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jaxnav.core import fastmath
+from jaxnav.core import batch, fastmath
+from jaxnav.core import filter as filter_api
 from jaxnav.core import weights as _w
 from jaxnav.core.integer_cdf import integer_cdf, scale
 from jaxnav.core.particle_filter import PFInfo
 from jaxnav.core.resampling import _COUNTS, ResampleResult
 
-__all__ = ["PARTICLE_AXIS", "SCHEMES", "finish_step", "resample", "resample_weights", "take"]
+__all__ = [
+    "PARTICLE_AXIS",
+    "SCHEMES",
+    "finish_step",
+    "resample",
+    "resample_weights",
+    "take",
+    "spread_devices",
+    "scan_program",
+]
 
 PARTICLE_AXIS = "particles"
 """The mesh axis over which the filters' ``run_sharded`` spread their particles."""
@@ -195,3 +206,39 @@ def _selection_score_bwd(axis_name, residuals, cotangent):
 
 
 _selection_score.defvjp(_selection_score_fwd, _selection_score_bwd)
+
+
+def spread_devices(num_particles: int, scheme: str, devices: Any = None) -> tuple:
+    """The local devices a filter's ``run_sharded`` spreads its ``num_particles`` over (``devices`` as in
+    :func:`jaxnav.core.batch.run_devices`; ``None``: every local device), after the checks every spread
+    filter needs: the devices are this process's, they divide the particles, and the resampling
+    ``scheme`` is one of :data:`SCHEMES`. ``ValueError`` naming what is wrong otherwise."""
+    chosen = batch.run_devices(jax.local_devices() if devices is None else devices)
+    if any(d.process_index != jax.process_index() for d in chosen):
+        raise ValueError("run_sharded spreads particles over this process's devices; devices must be local")
+    if num_particles % len(chosen):
+        raise ValueError(f"config.num_particles ({num_particles}) must be a multiple of the {len(chosen)} devices")
+    if scheme not in SCHEMES:
+        raise ValueError(f"config.resampling {scheme!r} cannot be spread over devices; choose one of {SCHEMES}")
+    return chosen
+
+
+@functools.lru_cache(maxsize=32)
+def scan_program(kernel: Any, config: Any, devices: tuple, state_specs: Any) -> Any:
+    """The compiled ``run`` of a filter whose particles are spread over ``devices``: a ``lax.scan`` of
+    ``kernel`` (:func:`jaxnav.core.filter.scan`) inside ``jax.shard_map`` over a one-axis mesh
+    :data:`PARTICLE_AXIS`, called as ``(key, state, params, *inputs)``. ``state_specs`` is the state's
+    ``PartitionSpec`` pytree (the particles' leaves in blocks, ``P(PARTICLE_AXIS)``; the rest ``P()``);
+    the key, the parameters, the inputs and the trace are the same on every device."""
+    from jax.sharding import Mesh
+    from jax.sharding import PartitionSpec as P
+
+    mesh = Mesh(np.asarray(devices, dtype=object), (PARTICLE_AXIS,))
+
+    def body(key: jax.Array, state: Any, params: Any, *inputs: Any) -> tuple[Any, Any]:
+        return filter_api.scan(kernel, key, state, config, params, *inputs)
+
+    spread = jax.shard_map(
+        body, mesh=mesh, in_specs=(P(), state_specs, P(), P(), P()), out_specs=(state_specs, P()), check_vma=False
+    )
+    return jax.jit(spread)

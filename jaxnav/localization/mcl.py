@@ -49,16 +49,16 @@ systematic); :mod:`jaxnav.calibration` fits ``params`` with it.
 from __future__ import annotations
 
 import contextlib
-import functools
 from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import PartitionSpec as P
 
-from jaxnav.core import batch, gradients, memory, resampling, rng, sharded, weights
 from jaxnav.core import filter as filter_api
+from jaxnav.core import gradients, memory, resampling, rng, sharded, weights
 from jaxnav.core.particle_filter import PFInfo, extend_info, finish_step, keep_finite, materialize
 from jaxnav.core.validation import (
     check_bounds,
@@ -446,37 +446,10 @@ def run_sharded(
     is not applied: each device holds ``N / D`` particles and the trace is ``[T]`` scalars and poses.
     """
     inputs = run.check(key, state, config, params, controls, observations)  # type: ignore[attr-defined]
-    chosen = batch.run_devices(jax.local_devices() if devices is None else devices)
-    if any(d.process_index != jax.process_index() for d in chosen):
-        raise ValueError("run_sharded spreads particles over this process's devices; devices must be local")
-    if config.num_particles % len(chosen):
-        raise ValueError(
-            f"config.num_particles ({config.num_particles}) must be a multiple of the {len(chosen)} devices"
-        )
-    if config.resampling not in sharded.SCHEMES:
-        raise ValueError(
-            f"config.resampling {config.resampling!r} cannot be spread over devices; choose one of {sharded.SCHEMES}"
-        )
     if config.gaussian_refresh:
         raise ValueError("config.gaussian_refresh is not available with the particles spread over devices")
     if config.gradient == "soft":
         raise ValueError("config.gradient 'soft' is not available with the particles spread over devices")
-    return _sharded_program(config, chosen)(key, state, params, *inputs)
-
-
-@functools.lru_cache(maxsize=32)
-def _sharded_program(config: MCLConfig, devices: tuple) -> Any:
-    """The compiled ``run`` over ``devices``: a ``lax.scan`` of :func:`sharded_kernel` in ``jax.shard_map``."""
-    from jax.sharding import Mesh
-    from jax.sharding import PartitionSpec as P
-
-    mesh = Mesh(np.asarray(devices, dtype=object), (sharded.PARTICLE_AXIS,))
+    chosen = sharded.spread_devices(config.num_particles, config.resampling, devices)
     blocks = MCLState(P(sharded.PARTICLE_AXIS), P(sharded.PARTICLE_AXIS))
-
-    def body(key: jax.Array, state: MCLState, params: Any, *inputs: Any) -> tuple[MCLState, MCLInfo]:
-        return filter_api.scan(sharded_kernel, key, state, config, params, *inputs)
-
-    spread = jax.shard_map(
-        body, mesh=mesh, in_specs=(P(), blocks, P(), P(), P()), out_specs=(blocks, P()), check_vma=False
-    )
-    return jax.jit(spread)
+    return sharded.scan_program(sharded_kernel, config, chosen, blocks)(key, state, params, *inputs)

@@ -50,6 +50,7 @@ import numpy as np
 
 from jaxnav.core import filter as filter_api
 from jaxnav.core import memory, resampling, weights
+from jaxnav.core.validation import check_finite
 from jaxnav.slam import tag_slam
 from jaxnav.slam.tag_slam import SLAMInfo, check_capacity
 
@@ -63,7 +64,9 @@ __all__ = [
     "kernel",
     "step",
     "run",
+    "run_sharded",
     "map_estimate",
+    "surveyed_tags",
     "check_capacity",
 ]
 
@@ -173,6 +176,27 @@ def init(
     return PFSLAMState(poses, log_w, _empty_table(config, poses.dtype))
 
 
+def surveyed_tags(config: PFSLAMConfig, positions: Any) -> TagTable:
+    """A tag table whose first ``M`` tags are surveyed: every one of tag ``n``'s ``J`` particles at
+    ``positions[n]`` (``[M, D]``, m, ``M ≤ max_tags``), its estimate there and its count 1 (seen), the
+    other rows empty. Put in a state from :func:`init` (``state._replace(tags=...)``), PF-SLAM becomes
+    localization on the surveyed map through the same sensor model: PF-SLAM's tag particles are never
+    jittered, so resampling keeps them on the surveyed points, and the robot is weighted against them.
+    """
+    pos = jnp.asarray(positions, jnp.result_type(float))
+    t, j, d = config.max_tags, config.num_tag_particles, config.sensor.landmark_dim
+    if pos.ndim != 2 or pos.shape[1] != d or pos.shape[0] > t:
+        raise ValueError(f"positions must be [M, {d}] with M ≤ max_tags = {t}, got shape {tuple(pos.shape)}")
+    check_finite("positions", pos)
+    table = _empty_table(config, pos.dtype)
+    m = pos.shape[0]
+    return table._replace(
+        particles=table.particles.at[:m].set(jnp.broadcast_to(pos[:, None, :], (m, j, d))),
+        estimates=table.estimates.at[:m].set(pos),
+        counts=table.counts.at[:m].set(1),
+    )
+
+
 def kernel(
     key: jax.Array,
     state: PFSLAMState,
@@ -180,13 +204,17 @@ def kernel(
     params: PFSLAMParams,
     control: jax.Array,
     detections: Any,
+    axis_name: str | None = None,
 ) -> tuple[PFSLAMState, SLAMInfo]:
     """One PF-SLAM step ([W] Alg. 1), pure and traceable (:func:`step` is it validated and jitted).
 
     A step whose odometry or parameters are outside the models' domain (refused on the host, so
     only inside a caller's ``jit``) keeps the state and sets ``info.invalid_inputs``
-    (:func:`jaxnav.slam.tag_slam.slam_step`)."""
-    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL, tag_slam.inputs_in_domain)
+    (:func:`jaxnav.slam.tag_slam.slam_step`). ``axis_name``: inside ``jax.shard_map``, the robot particles
+    are this device's block (:func:`run_sharded`)."""
+    return tag_slam.slam_step(
+        key, state, config, params, control, detections, TAG_MODEL, tag_slam.inputs_in_domain, axis_name=axis_name
+    )
 
 
 step, run = filter_api.build(
@@ -210,3 +238,18 @@ step, run = filter_api.build(
 
 map_estimate = jax.jit(tag_slam.map_estimate)
 map_estimate.__doc__ = tag_slam.map_estimate.__doc__
+
+
+def run_sharded(
+    key: jax.Array,
+    state: PFSLAMState,
+    config: PFSLAMConfig,
+    params: PFSLAMParams,
+    controls: jax.Array,
+    detections: Any,
+    devices: Any = None,
+) -> tuple[PFSLAMState, SLAMInfo]:
+    return tag_slam.run_sharded(run, kernel, key, state, config, params, controls, detections, devices)
+
+
+run_sharded.__doc__ = tag_slam.RUN_SHARDED_DOC

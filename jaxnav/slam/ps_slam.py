@@ -111,6 +111,7 @@ __all__ = [
     "kernel",
     "step",
     "run",
+    "run_sharded",
     "map_estimate",
     "check_capacity",
 ]
@@ -366,13 +367,17 @@ def kernel(
     params: PSSLAMParams,
     control: jax.Array,
     detections: Any,
+    axis_name: str | None = None,
 ) -> tuple[PSSLAMState, SLAMInfo]:
     """One PS-SLAM step ([W] Alg. 2), pure and traceable (:func:`step` is it validated and jitted).
 
     A step whose odometry or parameters are outside the models' domain (refused on the host, so
     only inside a caller's ``jit``) keeps the state and sets ``info.invalid_inputs``
-    (:func:`jaxnav.slam.tag_slam.slam_step`)."""
-    return tag_slam.slam_step(key, state, config, params, control, detections, TAG_MODEL, _inputs_in_domain)
+    (:func:`jaxnav.slam.tag_slam.slam_step`). ``axis_name``: inside ``jax.shard_map``, the robot particles
+    are this device's block (:func:`run_sharded`)."""
+    return tag_slam.slam_step(
+        key, state, config, params, control, detections, TAG_MODEL, _inputs_in_domain, axis_name=axis_name
+    )
 
 
 step, run = filter_api.build(
@@ -397,3 +402,18 @@ step, run = filter_api.build(
 
 map_estimate = jax.jit(tag_slam.map_estimate)
 map_estimate.__doc__ = tag_slam.map_estimate.__doc__
+
+
+def run_sharded(
+    key: jax.Array,
+    state: PSSLAMState,
+    config: PSSLAMConfig,
+    params: PSSLAMParams,
+    controls: jax.Array,
+    detections: Any,
+    devices: Any = None,
+) -> tuple[PSSLAMState, SLAMInfo]:
+    return tag_slam.run_sharded(run, kernel, key, state, config, params, controls, detections, devices)
+
+
+run_sharded.__doc__ = tag_slam.RUN_SHARDED_DOC

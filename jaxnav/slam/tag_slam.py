@@ -46,6 +46,11 @@ One step, for ``K`` detection slots (ids, readers, mask):
    name mixture points of the *updated* row (``TagModel.robot_target``: PS-SLAM's smoothed or
    current particles, :mod:`jaxnav.slam.ps_slam`, "Readings").
 
+The robot particles can be spread over devices (:func:`run_sharded`, the filters' ``run_sharded``):
+each device moves and weights its block, the robot's sums, maxima and resampling are over every
+device (:mod:`jaxnav.core.sharded`), and every device holds the whole tag table and makes the same
+update of the detected tags from the same robot estimate.
+
 Choices where [W] is silent (stated here, tested):
 
 * A tag seen for the first time does not weight the robot: its estimate was
@@ -81,17 +86,19 @@ Choices where [W] is silent (stated here, tested):
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
+from functools import lru_cache, partial
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import PartitionSpec as P
 
 from jaxnav.core import filter as filter_api
-from jaxnav.core import resampling, rng, weights
+from jaxnav.core import resampling, rng, sharded, weights
 from jaxnav.core.particle_filter import PFInfo, at_least_one_slot, extend_info, finish_step, keep_finite
 from jaxnav.core.validation import (
     check_choice,
@@ -424,6 +431,7 @@ def slam_step(
     det: Any,
     tag_model: TagModel,
     valid_inputs: Callable[..., jax.Array] = inputs_in_domain,
+    axis_name: str | None = None,
 ) -> tuple[Any, SLAMInfo]:
     """One step of [W] Alg. 1 / Alg. 2 (module docstring). Returns ``(state, SLAMInfo)``.
 
@@ -435,6 +443,10 @@ def slam_step(
     (:func:`jaxnav.core.filter.guard_inputs`): its detections are masked out, so no row of the
     table is written (a select over the whole table would cost a pass over it at every step),
     and only the robot's particles are selected.
+
+    ``axis_name`` (inside ``jax.shard_map``): ``state.poses`` and ``state.log_weights`` are this
+    device's block of the robot particles spread over that mesh axis, and the tag table is the whole
+    table, the same on every device (:func:`run_sharded`).
     """
     ok = filter_api.inputs_in_domain(valid_inputs, config, params, control, det)
     det = at_least_one_slot(det)
@@ -445,9 +457,9 @@ def slam_step(
     # gather: O(K·row); the loop below must not hold the table, or XLA copies it into the loop
     rows = jax.tree_util.tree_map(lambda a: a[jnp.clip(det.ids, 0, config.max_tags - 1)], state.tags)
     if lanes is None or lanes >= num_slots:
-        res = _slot_result(key, robot, rows, config, params, control, det, tag_model)
+        res = _slot_result(key, robot, rows, config, params, control, det, tag_model, axis_name)
     else:
-        res = _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes)
+        res = _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes, axis_name)
     # the table is only written here, once: in place in a scan carry or a donated step. Every field
     # written is a select with its gathered row (module docstring, "In place"); the slots that
     # keep their row are dropped by the scatter, so the select changes no value written.
@@ -486,8 +498,8 @@ def _expand(res: StepResult, order, num_slots: int, max_tags: int, num_ignored) 
     return res._replace(write_ids=put(max_tags, res.write_ids), rows=rows, info=info)
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(3, 7, 8))
-def _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes):
+@partial(jax.custom_jvp, nondiff_argnums=(3, 7, 8, 9))
+def _compacted_result(key, robot, rows, config, params, control, det, tag_model, lanes, axis_name):
     """:func:`_slot_result` on the first ``lanes`` valid slots, and on all ``K`` slots only when a
     step has more valid slots than that: the same result either way up to float rounding (sums
     over the slots run in another order), at the cost of ``L`` slots.
@@ -500,12 +512,12 @@ def _compacted_result(key, robot, rows, config, params, control, det, tag_model,
     num_slots = det.ids.shape[0]
     order, small, num_valid, num_ignored = _compact(det, config.max_tags, lanes, config.sensor)
     small_rows = jax.tree_util.tree_map(lambda a: a[order], rows)
-    res = _slot_result(key, robot, small_rows, config, params, control, small, tag_model)
+    res = _slot_result(key, robot, small_rows, config, params, control, small, tag_model, axis_name)
     res = _expand(res, order, num_slots, config.max_tags, num_ignored)
 
     def all_slots(carry):
         _, k, _ = carry
-        result = _slot_result(k, robot, rows, config, params, control, det, tag_model)
+        result = _slot_result(k, robot, rows, config, params, control, det, tag_model, axis_name)
         # The key is carried and changed so that the update is not loop-invariant: XLA hoists
         # invariant code out of a loop, which would compute it at every step.
         return jnp.zeros((), bool), jax.random.fold_in(k, 1), result
@@ -514,26 +526,34 @@ def _compacted_result(key, robot, rows, config, params, control, det, tag_model,
 
 
 @_compacted_result.defjvp
-def _compacted_result_jvp(config, tag_model, lanes, primals, tangents):
+def _compacted_result_jvp(config, tag_model, lanes, axis_name, primals, tangents):
     def all_slots(key, robot, rows, params, control, det):
-        return _slot_result(key, robot, rows, config, params, control, det, tag_model)
+        return _slot_result(key, robot, rows, config, params, control, det, tag_model, axis_name)
 
     return jax.jvp(all_slots, primals, tangents)
 
 
-def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model: TagModel) -> StepResult:
+def _slot_result(
+    key, robot, rows, config, params, control, det: Any, tag_model: TagModel, axis_name: str | None = None
+) -> StepResult:
     """The step on all ``K`` slots of ``det``, up to the table write (module docstring): ``robot`` is
-    ``(poses, log_weights)``, ``rows`` the slots' rows of the tag table."""
+    ``(poses, log_weights)``, ``rows`` the slots' rows of the tag table; with ``axis_name`` the robot's
+    particles are this device's block (:func:`slam_step`): the robot's draws are blocks of the whole
+    draw, its sums and maxima are over every device, and every device updates the same tags from the
+    same robot estimate."""
     state_poses, state_log_weights = robot
     k_move, k_tags, k_recover, k_resample = jax.random.split(key, 4)
     model = get_motion_model(config.motion_model)
     sensor, sensor_params = config.sensor, params.sensor
     max_tags, num_slots = config.max_tags, det.ids.shape[0]
 
+    # Per-particle draws only inside ``robot_blocks`` (a tag's draw of J rows must not be taken for one).
+    robot_blocks = partial(_robot_blocks, axis_name, state_poses.shape[0])
     # Materialise the moved particles: otherwise XLA:CPU fuses the motion draw (erf⁻¹, logs) into
     # the [K, I] likelihoods below and recomputes it for every slot (K times the draw).
-    poses = jax.lax.optimization_barrier(model.sample(k_move, state_poses, control, params.motion))
-    pose_est = weights.mean_from_probabilities(poses, jnp.exp(state_log_weights), _POSE_ANGLE_DIMS)
+    with robot_blocks():
+        poses = jax.lax.optimization_barrier(model.sample(k_move, state_poses, control, params.motion))
+    pose_est = weights.mean_from_probabilities(poses, jnp.exp(state_log_weights), _POSE_ANGLE_DIMS, axis_name)
 
     valid, ids, same, first, leader, num_ignored = _slots(det, max_tags, sensor)
     z = sensor.measurements(det, sensor_params)  # every leaf [K, ...]
@@ -550,6 +570,8 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
     first_z = jax.tree_util.tree_map(lambda a: a[first], z)
     propose_kw = {}
     if tag_model.uses_robot_particles is not None and tag_model.uses_robot_particles(config):
+        if axis_name is not None:
+            raise ValueError("a tag model that draws from the robot particles cannot have them spread over devices")
         propose_kw["robot"] = (poses, state_log_weights)
     particles, log_w = jax.vmap(
         lambda k, row, new, zk: tag_model.propose(k, row, new, pose_est, zk, config, params, **propose_kw)
@@ -572,10 +594,11 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
         ll_prev = mixture_log_likelihood(poses)
     else:
         ll_prev = _robot_log_likelihood(poses, rows.estimates, z, known, sensor, sensor_params)
+    best = jnp.max(ll_prev) if axis_name is None else jax.lax.pmax(jnp.max(ll_prev), axis_name)
     lost = (
         jnp.asarray(config.recovery)
         & (num_known > 0)
-        & (jnp.max(ll_prev) < config.recovery_log_likelihood * num_known.astype(poses.dtype))
+        & (best < config.recovery_log_likelihood * num_known.astype(poses.dtype))
     )
     own = jax.vmap(lambda p, zk: sensor.landmark_log_likelihood(p, pose_est, zk, sensor_params))(particles, z)
     group = same & jnp.where(is_new[:, None], slots[None, :] != first[:, None], True)
@@ -590,9 +613,13 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
 
     estimates = jnp.where(lost | ~row_ok[:, None], rows.estimates, new_rows.estimates)
     if config.recovery:  # a cond: a step that is not lost draws nothing (under vmap both branches run)
-        poses = jax.lax.cond(
-            lost, lambda p: _recover(k_recover, p, rows.estimates, z, known, config, sensor_params), lambda p: p, poses
-        )
+        with robot_blocks():
+            poses = jax.lax.cond(
+                lost,
+                lambda p: _recover(k_recover, p, rows.estimates, z, known, config, sensor_params),
+                lambda p: p,
+                poses,
+            )
     uniform = jnp.full_like(state_log_weights, -jnp.log(jnp.asarray(config.num_particles, poses.dtype)))
     prior_lw = jnp.where(lost, uniform, state_log_weights)
     if config.robot_likelihood == "mixture":
@@ -607,10 +634,12 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
     else:
         robot_ll = _robot_log_likelihood(poses, estimates, z, known, sensor, sensor_params)
     poses, loglik = keep_finite(state_poses, poses, robot_ll)
-    norm = weights.normalize(prior_lw + loglik)
-    res, base = finish_step(
-        k_resample, poses, norm, threshold=config.ess_threshold, scheme=config.resampling, angle_dims=_POSE_ANGLE_DIMS
-    )
+    norm = weights.normalize(prior_lw + loglik, axis_name)
+    resample_kw = {"threshold": config.ess_threshold, "scheme": config.resampling, "angle_dims": _POSE_ANGLE_DIMS}
+    if axis_name is None:
+        res, base = finish_step(k_resample, poses, norm, **resample_kw)
+    else:
+        res, base = sharded.finish_step(k_resample, poses, norm, axis_name, **resample_kw)
 
     counts_after = jnp.where(lost, rows.counts, new_rows.counts)
     info = extend_info(
@@ -625,6 +654,12 @@ def _slot_result(key, robot, rows, config, params, control, det: Any, tag_model:
         slot_counts=jnp.where(valid, counts_after, 0),
     )
     return StepResult(write_ids, new_rows, res.particles, res.log_weights, info)
+
+
+def _robot_blocks(axis_name: str | None, rows: int):
+    """A context in which a draw of ``rows`` robot particles is this device's block of the whole draw
+    (:func:`jaxnav.core.rng.particle_blocks`); nothing without ``axis_name``."""
+    return contextlib.nullcontext() if axis_name is None else rng.particle_blocks(axis_name, rows)
 
 
 def _robot_target(tag_model: TagModel, new_rows: Any, rows: Any, keep: jax.Array, config: Any):
@@ -652,6 +687,66 @@ def map_estimate(state: Any) -> tuple[jax.Array, jax.Array]:
     Reads the whole table, so it is a read-out for after (or between) steps, not part of one.
     """
     return state.tags.estimates, state.tags.counts > 0
+
+
+def run_sharded(
+    run: Any,
+    kernel: Callable[..., Any],
+    key: jax.Array,
+    state: Any,
+    config: Any,
+    params: Any,
+    controls: jax.Array,
+    detections: Any,
+    devices: Any = None,
+) -> tuple[Any, SLAMInfo]:
+    """``run(key, state, config, params, controls, detections)`` with the robot particles spread over
+    ``devices`` (PF-SLAM's and PS-SLAM's ``run_sharded``): checked as ``run`` checks, then the program
+    of :func:`jaxnav.core.sharded.scan_program`, the robot's ``poses`` and ``log_weights`` in blocks
+    over the devices and every other field of the state (the tag table) whole on each. ``kernel`` is
+    the filter's, taking ``axis_name``."""
+    inputs = run.check(key, state, config, params, controls, detections)
+    chosen = sharded.spread_devices(config.num_particles, config.resampling, devices)
+    blocks = {field: P() for field in type(state)._fields}
+    specs = type(state)(**{**blocks, "poses": P(sharded.PARTICLE_AXIS), "log_weights": P(sharded.PARTICLE_AXIS)})
+    return sharded.scan_program(_spread_kernel(kernel), config, chosen, specs)(key, state, params, *inputs)
+
+
+@lru_cache(maxsize=8)
+def _spread_kernel(kernel: Callable[..., Any]) -> Callable[..., Any]:
+    """``kernel`` with ``axis_name=PARTICLE_AXIS``, one object per kernel (a key of the program cache)."""
+    return partial(kernel, axis_name=sharded.PARTICLE_AXIS)
+
+
+RUN_SHARDED_DOC = """:func:`run` with the robot particles spread over ``devices`` (default: every local device).
+
+    The ``I`` robot particles are split into ``D`` blocks of ``I / D`` consecutive particles, one per
+    device; the tag table is held whole by every device, and every device updates the same detected
+    tags from the same robot estimate. Each step runs :func:`kernel` with ``axis_name`` inside
+    ``jax.shard_map``: the robot's motion draws are blocks of the whole draw
+    (:func:`jaxnav.core.rng.particle_blocks`), its estimate, normaliser, ESS and kidnapping check
+    are sums and maxima over the devices, and its resampling is the exact global scheme of
+    :mod:`jaxnav.core.sharded` (from the same weights and key, :func:`run`'s ancestors).
+
+    **The same numbers, to float rounding.** The sums over devices run in another order than one
+    device's, so the robot estimate may differ from :func:`run`'s in its last bits, and the tags
+    updated from it with it; a particle filter can amplify such a difference in a single run (in
+    distribution nothing changes). ``tests/slam/test_tag_slam_sharded.py`` measures the agreement.
+
+    What it buys: the robot's step costs ``O(I / D)`` per device, while the tags' ``O(K·J)`` is
+    computed on every device. Worth it when ``I`` is large against ``K·J``.
+
+    Args:
+        devices: ``None`` (every local device), a number ``D`` of local devices, or a sequence of
+            local devices (:func:`jaxnav.core.batch.run_devices`); ``config.num_particles`` must be
+            a multiple of ``D``, and ``config.resampling`` ``"systematic"`` or ``"stratified"``
+            (:data:`jaxnav.core.sharded.SCHEMES`).
+
+    Returns:
+        ``(final_state, trace)`` as :func:`run`; the final robot particles stay spread over the devices.
+
+    The memory guard of :func:`run` is not applied: each device holds ``I / D`` robot particles and
+    the whole tag table."""
 
 
 def filter_spec(

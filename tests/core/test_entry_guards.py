@@ -143,6 +143,26 @@ def _calls() -> dict[str, tuple[Any, tuple, dict, bool]]:
             False,
         ),
         "pf_slam.init": (pf_slam.init, (pf_slam.PFSLAMConfig(8, 8, 16), hf, POSE), {}, False),
+        "pf_slam.run_sharded": (
+            lambda key: pf_slam.run_sharded(key, None, pf_slam.PFSLAMConfig(8, 8, 16), hf, None, None, devices=1),
+            (),
+            {},
+            False,
+        ),
+        "ps_slam.run_sharded": (
+            lambda key: ps_slam.run_sharded(key, None, ps_slam.PSSLAMConfig(8, 8, 16, lag=3), ps, None, None),
+            (),
+            {},
+            False,
+        ),
+        "tag_slam.run_sharded": (
+            lambda key: tag_slam.run_sharded(
+                pf_slam.run, pf_slam.kernel, key, None, pf_slam.PFSLAMConfig(8, 8, 16), hf, None, None
+            ),
+            (),
+            {},
+            False,
+        ),
         "ps_slam.init": (ps_slam.init, (ps_slam.PSSLAMConfig(8, 8, 16, lag=3), ps, POSE), {}, False),
         "tag_slam.initial_particles": (
             tag_slam.initial_particles,

@@ -78,3 +78,27 @@ def test_the_readings_differences_are_listed_where_their_result_is_committed(dif
     i = sorted(settings).index("table-4.2")
     assert f"PS-SLAM, feedback − PF-SLAM: {-2.5 - i:.1f} [{-3.5 - i:.1f}, {-1.5 - i:.1f}] mm" in section
     assert f"PS-SLAM, default − PF-SLAM: {10.0 + i:.1f}" in section
+
+
+def test_the_fastslam_explanation_follows_the_readings_numbers(differences, committed):
+    """The reading nearest to [W]'s FastSLAM is computed: with the narrow Gaussian moved to PF-SLAM's level,
+    no reading comes near and the page says the difference is not explained."""
+    text = differences.page(committed)
+    assert "The reading nearest to [W]'s 420.8 and 245.7 mm is σ = 60 mm/√12" in text
+    results = copy.deepcopy(committed)
+    for r in results["fastslam-rfid-readings"]["rows"]:
+        if r["row"].endswith("small_reader"):
+            r["dr_mm"] = {"mean": 60.0, "ci95": [58.0, 62.0], "paper": r["dr_mm"]["paper"]}
+    assert "the difference is not explained yet" in differences.page(results)
+
+
+def test_the_fig_3_7_explanation_follows_the_limits_numbers(differences, committed):
+    """With the surveyed map's curve moved up to PF-SLAM's, the page no longer says mapping costs anything."""
+    assert "mapping costs" in differences.page(committed)
+    results = copy.deepcopy(committed)
+    for c in results["fig-3.7-limits"]["curves"]:
+        if c["method"] == "PF-SLAM, map known":
+            c["mean"] = [40.0] * len(c["x"])
+            c["ci95"] = [[38.0, 42.0]] * len(c["x"])
+    text = differences.page(results)
+    assert "mapping costs" not in text and "Even with every tag surveyed it is 40.0 mm" in text

@@ -78,7 +78,12 @@ def test_table_summary_holds_mean_interval_and_thesis_value(tmp_path):
         (100.0, "pf_slam"),
     ]
     first = rows[0]
-    assert first["setting"] == {"density": 16.0, "reader_mm": 60.0, "trajectory": "rectangle"}
+    assert first["setting"] == {
+        "density": 16.0,
+        "reader_mm": 60.0,
+        "trajectory": "rectangle",
+        "fastslam_gaussian": "footprint",  # a FastSLAM row names its Gaussian
+    }
     values = raw[cells[0].id]["dr_mm"]
     assert first["dr_mm"]["mean"] == pytest.approx(values.mean())
     lo, hi = first["dr_mm"]["ci95"]
@@ -87,7 +92,8 @@ def test_table_summary_holds_mean_interval_and_thesis_value(tmp_path):
     json.dumps(result)  # JSON-ready
     text = exp.render(result)
     assert "36.6" in text and "PF-SLAM" in text
-    assert "| 16 tags/m², 60 mm, rectangle | FastSLAM |" in exp.markdown(result)
+    assert "| 16 tags/m², 60 mm, rectangle, σ = s/√12 | FastSLAM |" in exp.markdown(result)
+    assert "| 16 tags/m², 60 mm, rectangle | PF-SLAM |" in exp.markdown(result)
     exp.plot(result, str(tmp_path / "t.png"))
     assert (tmp_path / "t.png").stat().st_size > 10_000
 

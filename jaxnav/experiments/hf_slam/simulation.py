@@ -60,6 +60,7 @@ __all__ = [
     "METHOD_LABELS",
     "TRAJECTORIES",
     "SMOOTHER_READINGS",
+    "FASTSLAM_GAUSSIANS",
     "HFSetting",
     "World",
     "MethodRun",
@@ -81,6 +82,7 @@ __all__ = [
     "dead_reckoning",
     "MapShift",
     "map_shift",
+    "fastslam_sensor",
     "detection_counts",
     "format_errors",
     "plot_run",
@@ -91,6 +93,14 @@ METHODS = ("pf_slam", "ps_slam", "fastslam")
 METHOD_LABELS = {"pf_slam": "PF-SLAM", "ps_slam": "PS-SLAM", "fastslam": "FastSLAM"}
 """The names of :data:`METHODS` in the tables, the figures and :func:`plot_run`."""
 TRAJECTORIES = ("rectangle", "random", "kidnapping")
+
+FASTSLAM_GAUSSIANS = {
+    "footprint": lambda side: side / math.sqrt(12.0),
+    "half_side": lambda side: side / 2.0,
+    "small_reader": lambda side: 0.06 / math.sqrt(12.0),
+}
+"""The readings of ``HFSetting.fastslam_gaussian``: each maps the reader's side ``s`` (m) to the σ (m,
+per axis) of FastSLAM's Gaussian detection."""
 """The trajectories a :class:`HFSetting` can drive."""
 SMOOTHER_READINGS = ("robot_target", "resampled_state", "history", "smoothing_order", "tag_init")
 """The fields of :class:`~jaxnav.slam.ps_slam.PSSLAMConfig` a :class:`HFSetting` may set (``smoother_readings``)."""
@@ -121,6 +131,14 @@ class HFSetting:
             ``resampled_state``, ``history``, ``smoothing_order``, ``tag_init``); ``()`` runs the defaults.
         beta: β of [W] eq. 3.7.
         fastslam_version: 1 or 2.
+        fastslam_gaussian: the Gaussian FastSLAM's EKFs take for a detection, a point measurement at the
+            detecting reader's centre ([W] §3.2 gives no σ): ``"footprint"`` (default), the footprint's
+            own variance ``s²/12`` per axis (σ = s/√12, the uniform square's); ``"half_side"``, σ = s/2;
+            ``"small_reader"``, the 60 mm reader's σ = 0.06/√12 m whatever the reader's side (the
+            model of [W] ch. 3 kept for the large readers of ch. 4). See :data:`FASTSLAM_GAUSSIANS`.
+        map_known: PF-SLAM starts with every tag surveyed at its true position
+            (:func:`jaxnav.slam.pf_slam.surveyed_tags`): localization on the known carpet through the
+            same eq. 3.7, the floor that the readers' resolution and the odometry set. PF-SLAM only.
     """
 
     density: float = 16.0
@@ -142,6 +160,8 @@ class HFSetting:
     smoother_readings: tuple[tuple[str, str], ...] = ()
     beta: float = hf_rfid.DEFAULT_BETA
     fastslam_version: int = 1
+    fastslam_gaussian: str = "footprint"
+    map_known: bool = False
 
     def __post_init__(self) -> None:
         check_choice("trajectory", self.trajectory, TRAJECTORIES)
@@ -153,6 +173,9 @@ class HFSetting:
             check_positive_int(name, getattr(self, name))
         self._check_carpet()
         check_choice("fastslam_version", self.fastslam_version, (1, 2))
+        check_choice("fastslam_gaussian", self.fastslam_gaussian, tuple(FASTSLAM_GAUSSIANS))
+        if not isinstance(self.map_known, bool):
+            raise ValueError(f"map_known must be True or False, got {self.map_known!r}")
         if len(self.odometry_sd) != 3 or any(not (s >= 0) for s in self.odometry_sd):
             raise ValueError(f"odometry_sd must be three numbers ≥ 0, got {self.odometry_sd!r}")
         x0, y0, w, h = self.rectangle
@@ -403,7 +426,7 @@ def filter_world(
             map_copy="gather",  # run_once is vmapped over runs: see FastSLAMConfig.map_copy
             parallel_slots=fastslam_parallel_slots(setting),
         )
-        params = fastslam.FastSLAMParams(setting.motion(), sensor)
+        params = fastslam.FastSLAMParams(setting.motion(), fastslam_sensor(setting))
         state = fastslam.init(k_init, config, params, start)
         obs = hf_rfid.landmark_observations(run.detections, sensor)
         ids = jnp.asarray(slot_of)[jnp.where(obs.mask, jnp.clip(obs.ids, 0, num_tags), num_tags)]
@@ -431,9 +454,25 @@ def filter_world(
         params = ps_slam.PSSLAMParams(setting.motion(), sensor, jitter)
     module.check_capacity(config, num_tags)
     state = module.init(k_init, config, params, start)
+    if setting.map_known:
+        if method != "pf_slam":
+            raise ValueError(f"map_known is read by PF-SLAM only, not by method {method!r}")
+        state = state._replace(tags=pf_slam.surveyed_tags(config, tc.tag_positions(world.carpet)))
     final, trace = module.run(k_run, state, config, params, run.odometry, run.detections)
     tags, seen = module.map_estimate(final)
     return MethodRun(trace.estimate, tags, seen, trace.lost), trace
+
+
+def fastslam_sensor(setting: HFSetting) -> hf_rfid.HFReaderParams:
+    """The reader parameters FastSLAM gets: the setting's, with the detection's Gaussian σ of
+    ``setting.fastslam_gaussian``. FastSLAM's footprint model reads the footprint only through its
+    covariance ``half_width²/3`` (:func:`jaxnav.models.hf_rfid.footprint_cov`), so σ is set as
+    ``half_width = √3·σ``; the readers' offsets (the measurements) are the setting's."""
+    sensor = setting.sensor()
+    if setting.fastslam_gaussian == "footprint":
+        return sensor
+    sd = FASTSLAM_GAUSSIANS[setting.fastslam_gaussian](setting.reader_side)
+    return sensor._replace(half_width=jnp.asarray(math.sqrt(3.0) * sd, sensor.half_width.dtype))
 
 
 def detection_counts(run: tc.HFRun, num_tags: int) -> jax.Array:

@@ -74,9 +74,15 @@ class TableRow:
         self.label, self.method, self.settings, self.paper = label, method, tuple(settings), tuple(paper)
 
 
-def setting_label(s: hf.HFSetting) -> dict:
-    """The JSON ``setting`` of a row: density, reader size, trajectory."""
-    return {"density": s.density, "reader_mm": round(1000 * s.reader_side, 3), "trajectory": s.trajectory}
+def setting_label(s: hf.HFSetting, method: str = "") -> dict:
+    """The JSON ``setting`` of a row: density, reader size, trajectory, and for a FastSLAM row its Gaussian
+    (``HFSetting.fastslam_gaussian``) and, where it is 2, its version."""
+    out = {"density": s.density, "reader_mm": round(1000 * s.reader_side, 3), "trajectory": s.trajectory}
+    if method == "fastslam":
+        out["fastslam_gaussian"] = s.fastslam_gaussian
+        if s.fastslam_version != 1:
+            out["fastslam_version"] = s.fastslam_version
+    return out
 
 
 def quick_setting(s: hf.HFSetting) -> hf.HFSetting:
@@ -129,7 +135,7 @@ def table_experiment(name: str, title: str, rows: Sequence[TableRow], notes: str
             diverged = diverged_in(values)
             entry = {
                 "row": row.label,
-                "setting": setting_label(members[0].setting),
+                "setting": setting_label(members[0].setting, row.method),
                 "method": row.method,
                 "cells": len(members),
                 "runs": int(diverged.size),
@@ -162,10 +168,24 @@ def _nan(col: str) -> str:
     return NOTHING_MAPPED if col in TAG_COLUMNS else report.NA
 
 
+GAUSSIAN_TEXT = {"footprint": "σ = s/√12", "half_side": "σ = s/2", "small_reader": "σ = 60 mm/√12"}
+"""How a table names FastSLAM's Gaussian (``HFSetting.fastslam_gaussian``)."""
+
+
 def _setting_text(s: dict, short: bool) -> str:
     if short:
-        return f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
-    return f"{s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']}"
+        text = f"{s['density']:g}/m², {s['reader_mm']:g} mm, {s['trajectory'][:4]}"
+    else:
+        text = f"{s['density']:g} tags/m², {s['reader_mm']:g} mm, {s['trajectory']}"
+    return f"{text}, {_fastslam_text(s)}" if _fastslam_text(s) else text
+
+
+def _fastslam_text(s: dict) -> str:
+    """FastSLAM's Gaussian and version where a row's setting names them (``"σ = s/2"``, ``"σ = s/√12, 2.0"``), else ``""``."""
+    if "fastslam_gaussian" not in s and "fastslam_version" not in s:
+        return ""
+    text = GAUSSIAN_TEXT[s.get("fastslam_gaussian", "footprint")]
+    return f"{text}, FastSLAM {s['fastslam_version']}.0" if "fastslam_version" in s else text
 
 
 def _diverged_footer(result: dict) -> list[str]:
@@ -185,7 +205,8 @@ def render_table(result: dict) -> str:
         f"{result['experiment']}: {result['title']}  ({result['runs']} runs per setting"
         f"{', quick variant' if result.get('quick') else ''}; ours = mean ± 95 % half-interval, [W] = thesis)"
     ]
-    columns = [report.Column("setting", 22, "<"), report.Column("method", 10, "<"), report.Column("", 5, "<")]
+    width = max([22] + [len(_setting_text(r["setting"], True)) + 1 for r in result["rows"]])
+    columns = [report.Column("setting", width, "<"), report.Column("method", 10, "<"), report.Column("", 5, "<")]
     columns += [report.Column(h, 16) for h in COLUMN_HEADS]
     rows = []
     for r in result["rows"]:
@@ -267,7 +288,9 @@ def _draw_table(result: dict):
 
     rows = result["rows"]
     labels = [
-        f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}" for r in rows
+        f"{r['setting']['density']:g}/m² {r['setting']['trajectory'][:4]}\n{METHOD_LABELS[r['method']]}"
+        + (f"\n{_fastslam_text(r['setting'])}" if _fastslam_text(r["setting"]) else "")
+        for r in rows
     ]
     x = np.arange(len(rows))
     fig, axes = plt.subplots(1, 2, figsize=(max(8, 1.6 * len(rows) + 3), 4.6), layout="constrained")
@@ -359,5 +382,37 @@ TABLE_4_2 = table_experiment(
     ],
 )
 
-EXPERIMENTS = (TABLE_3_1, TABLE_3_2, TABLE_4_1, TABLE_4_2)
+# [W]'s FastSLAM rows of Tables 4.1 and 4.2, beside each reading of its Gaussian
+_W41_FASTSLAM = (315.1, 204.5, 0.182, 420.8, 296.6, 210.1, 412.1)
+_W42_FASTSLAM = (110.4, 198.6, 0.131, 245.7, 122.5, 234.1, 280.0)
+_FASTSLAM_READINGS = (
+    ("footprint", {}),
+    ("half_side", {"fastslam_gaussian": "half_side"}),
+    ("small_reader", {"fastslam_gaussian": "small_reader"}),
+    ("footprint-2.0", {"fastslam_version": 2}),
+)
+
+
+def _fastslam_rows() -> list[TableRow]:
+    rows = []
+    for table, settings, paper in (("4.1", _S41, _W41_FASTSLAM), ("4.2", [_S42], _W42_FASTSLAM)):
+        for name, change in _FASTSLAM_READINGS:
+            rows.append(TableRow(f"{table} {name}", "fastslam", [replace(s, **change) for s in settings], paper))
+    return rows
+
+
+FASTSLAM_READINGS = table_experiment(
+    "fastslam-rfid-readings",
+    "FastSLAM-RFID under the Gaussians [W]'s text allows, 300 mm readers ([W] Tables 4.1, 4.2)",
+    _fastslam_rows(),
+    notes=(
+        "[W] §3.2 updates each tag with an EKF of a Gaussian detection but gives no σ. Each row is FastSLAM "
+        "on the setting of Table 4.1 (five rectangles pooled) or 4.2 with one reading of that Gaussian, a "
+        "point measurement at the detecting reader's centre: σ = s/√12, the 300 mm footprint's own variance "
+        "(ours, the tables' default); σ = s/2, the half side; σ = 60 mm/√12, the 60 mm reader's σ of "
+        "[W] ch. 3 kept for the large readers; and ours with FastSLAM 2.0. [W]'s values are its FastSLAM row."
+    ),
+)
+
+EXPERIMENTS = (TABLE_3_1, TABLE_3_2, TABLE_4_1, TABLE_4_2, FASTSLAM_READINGS)
 """The four tables, in [W]'s order (listed by :mod:`jaxnav.experiments.catalog`)."""

@@ -92,6 +92,9 @@ PAPER: dict[tuple[str, int, str], tuple[float | None, str]] = {
 }
 """[A]'s final RMSE (m) per ``(multipath, dims, method)``, or None, with where it comes from."""
 
+PRIOR_MARGINS = (0.0, 0.5, 1.0)
+"""How far (m) ``uhf-prior`` grows the filter's search box on every side."""
+
 FIG_5_3_NOTE = (
     f"[A] Fig. 5.3 gives no numbers: the RMSE grows with the anchor-to-tag distance, sharply beyond "
     f"λ/2 = {WAVELENGTH / 2:.4f} m"
@@ -108,17 +111,21 @@ def _setting_json(s: UHFSetting) -> dict:
     }
     if s.correlation_length is not None:  # only then: the other experiments' settings keep their keys
         out["correlation_length_m"] = round(s.correlation_length, 6)
+    if s.prior_margin:
+        out["prior_margin_m"] = round(s.prior_margin, 6)
     return out
 
 
 def _label(setting: dict) -> str:
     refresh = setting.get("refresh", "gaussian")
     ell = setting.get("correlation_length_m")
+    grown = setting.get("prior_margin_m")
     return (
         f"{setting['multipath']}, {setting['dims']}D, anchor {setting['anchor_distance_m']:.3g} m "
         f"({setting['anchor_distance_lambda']:.2g} λ)"
         + ("" if refresh == "gaussian" else f", {refresh} refresh")
         + ("" if ell is None else f", fading ℓ = {ell:.3g} m")
+        + ("" if grown is None else f", prior box +{grown:.3g} m")
     )
 
 
@@ -261,9 +268,10 @@ def _wrap(text: str, width: int) -> str:
     return textwrap.fill(text, width)
 
 
-def _title(result: dict) -> str:
-    """``"NAME: title (R runs)"``, wrapped, with a line naming a quick variant (its numbers are not the experiment's)."""
-    head = _wrap(f"{result['experiment']}: {result['title']} ({result['runs']} runs)", 140)
+def _title(result: dict, width: int = 140) -> str:
+    """``"NAME: title (R runs)"``, wrapped at ``width`` characters, with a line naming a quick variant (its
+    numbers are not the experiment's)."""
+    head = _wrap(f"{result['experiment']}: {result['title']} ({result['runs']} runs)", width)
     if not result.get("quick"):
         return head
     rows = result["rows"]
@@ -274,11 +282,11 @@ def _title(result: dict) -> str:
     )
 
 
-def _band(ax, r, color, label):
+def _band(ax, r, color, label, linestyle="-"):
     t = np.asarray(r["time_s"])
     m = np.asarray(r["rmse_m"]["mean"], float)
     ci = np.asarray(r["rmse_m"]["ci95"], float)
-    ax.plot(t, m, "-", color=color, lw=1.3, label=label)
+    ax.plot(t, m, linestyle=linestyle, color=color, lw=1.3, label=label)
     # an RMSE is ≥ 0: an interval's lower end below 0 is drawn at 0
     ax.fill_between(t, np.maximum(ci[:, 0], 0.0), ci[:, 1], color=color, alpha=0.15, lw=0)
 
@@ -305,7 +313,10 @@ def _draw_curves(result: dict):
             c = _COLORS[r["method"]] if refresh == "gaussian" else _KERNEL_COLOR
             f = r["final_rmse_m"]
             name = r["method"] if refresh == "gaussian" else f"{r['method']}, {refresh} refresh"
-            _band(ax, r, c, f"{name} (final {f['mean']:.2f} m)")
+            grown = r["setting"].get("prior_margin_m")
+            name += "" if grown is None else f", prior +{grown:g} m"
+            style = _PRIOR_STYLES.get(grown or 0.0, "-.")
+            _band(ax, r, c, f"{name} (final {f['mean']:.2f} m)", style)
             if f["paper"] is not None:
                 papers.setdefault(r["method"], f["paper"])
         by_value: dict[float, list[str]] = {}
@@ -320,7 +331,8 @@ def _draw_curves(result: dict):
         ax.set_title(f"{mp} multipath, {dims}D, anchor {rows[0]['setting']['anchor_distance_m']:g} m", fontsize=9)
         ax.set_xlabel("time (s)")
         ax.grid(alpha=0.3)
-        _legend_below(ax)
+        longest = max(len(text) for text in ax.get_legend_handles_labels()[1])
+        _legend_below(ax, ncol=2 if longest <= 40 else 1)  # long labels in two columns would run off the page
     # the panels share y: fix it once to hold every panel's curves (a limit set on the first panel
     # alone stops autoscaling and would cut the others' curves off); a few runs' wide bands may run off the top
     top = max(
@@ -329,8 +341,12 @@ def _draw_curves(result: dict):
     )
     axes[0][0].set_ylim(0, 1.15 * top)
     axes[0][0].set_ylabel("RMSE (m); shaded: 95 % CI")
-    fig.suptitle(_title(result), fontsize=9)
+    fig.suptitle(_title(result, 70 * len(panels)), fontsize=9)
     return fig
+
+
+_PRIOR_STYLES = {0.0: "-", 0.5: "--", 1.0: ":"}
+"""Line style of a curve by how far its prior box is grown (m; ``uhf-prior``)."""
 
 
 def plot_curves(result: dict, path: str) -> None:
@@ -495,8 +511,10 @@ def _experiment(
             fn = run_once(weightings, s.dims, s.num_particles, s.refresh, s.fading_fields)
             # [A]'s Gaussian cells keep the ids of fig-5.5/5.6 (so the same seeded runs): common random numbers;
             # so do the correlated-fading cells of fig-5.3's: same tags, anchors, phase noise and filter keys
-            cid = f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}" + (
-                "" if s.refresh == "gaussian" else f"|refresh={s.refresh}"
+            cid = (
+                f"{s.multipath}|{s.dims}d|anchor={s.anchor_distance:.6g}"
+                + ("" if s.refresh == "gaussian" else f"|refresh={s.refresh}")
+                + ("" if not s.prior_margin else f"|prior=+{s.prior_margin:.6g}")
             )
             out.append(Cell(cid, cid, "+".join(methods), s, fn, (run_inputs(s),)))
         return out
@@ -595,5 +613,20 @@ UHF_REFRESH = _experiment(
     "of redrawing the whole set from one Gaussian, so the early multimodal posterior keeps its modes. " + _COMMON_NOTES,
 )
 
-EXPERIMENTS = (FIG_5_3, FIG_5_3_CORRELATED, FIG_5_5, FIG_5_6, UHF_REFRESH)
+UHF_PRIOR = _experiment(
+    "uhf-prior",
+    "Ours, not [A]'s: Alg. 6 combined in 3D, light multipath, with [A]'s prior (the room's box) against wider "
+    "priors, Gaussian and kernel refresh",
+    [UHFSetting(multipath="light", dims=3, refresh=r, prior_margin=m) for r in REFRESHES for m in PRIOR_MARGINS],
+    ("combined",),
+    lambda s, w: PAPER[(s.multipath, s.dims, w)],
+    plot_curves,
+    f"Anchor {CLOSE_ANCHOR} m from the tag. The filter's uniform prior (and the box its refresh is clipped to) is "
+    "the 2 x 3 x 2 m room grown by 0, 0.5 or 1 m on every side (the floor kept at z = 0); the tag and the anchor "
+    "are drawn in the room either way. The cells with [A]'s box are fig-5.5's and uhf-refresh's (same cell ids, "
+    "same seeded scenes and keys, so the run that fig-5.5's combined weighting loses is among them; another "
+    "compiled program rounds differently, so a run that hesitates between modes may end elsewhere). " + _COMMON_NOTES,
+)
+
+EXPERIMENTS = (FIG_5_3, FIG_5_3_CORRELATED, FIG_5_5, FIG_5_6, UHF_REFRESH, UHF_PRIOR)
 """The UHF experiments (listed by :mod:`jaxnav.experiments.catalog`)."""

@@ -153,6 +153,9 @@ class UHFSetting:
         correlation_length: ``None`` (the preset's fading, independent for every tag) or
             ``ℓ`` (m) of the spatially correlated fading
             (:func:`jaxnav.sim.uhf_reader.correlated_fading`; ``fig-5.3-correlated``).
+        prior_margin: the filter's search box (its uniform prior, and the box its refresh is clipped
+            to) is the room's box grown by this much (m) on every side, its floor kept at ``z = 0``;
+            0 is [A]'s (``uhf-prior``). The tag and the anchor are drawn in the room's box either way.
     """
 
     multipath: str = "light"
@@ -164,6 +167,7 @@ class UHFSetting:
     margin: float = MARGIN
     refresh: str = "gaussian"
     correlation_length: float | None = None
+    prior_margin: float = 0.0
 
     def __post_init__(self) -> None:
         check_choice("multipath", self.multipath, MULTIPATHS)
@@ -178,6 +182,7 @@ class UHFSetting:
             raise ValueError(f"steps_per_pass must be ≥ 2, got {self.steps_per_pass}")
         check_positive("speed", self.speed)
         check_nonnegative("margin", self.margin)
+        check_nonnegative("prior_margin", self.prior_margin)
         lo, hi = S.SEARCH_BOX_A
         if not np.all(hi - lo > 2 * self.margin):
             raise ValueError(
@@ -213,6 +218,8 @@ class UHFInputs(NamedTuple):
         margin: m.
         filter: :class:`~jaxnav.localization.rfid_tag.RFIDTagParams` (search box, channel,
             ``σ_phase``; ``gamma`` and ``tag_height`` are replaced in each run).
+        room_lo, room_hi: ``[3]`` corners of the room's box (m), where the tag and the anchor are drawn
+            (the filter's search box unless ``UHFSetting.prior_margin`` widens it).
     """
 
     path: jax.Array
@@ -220,6 +227,8 @@ class UHFInputs(NamedTuple):
     anchor_distance: jax.Array
     margin: jax.Array
     filter: rt.RFIDTagParams
+    room_lo: jax.Array
+    room_hi: jax.Array
 
 
 def _path(s: UHFSetting) -> np.ndarray:
@@ -234,12 +243,16 @@ def run_inputs(s: UHFSetting) -> UHFInputs:
     mp = S.get_multipath(s.multipath)
     if s.correlation_length is not None:
         mp = S.correlated_fading(mp, s.correlation_length)
+    grow = np.full(3, s.prior_margin)
+    prior_lo = np.maximum(np.asarray(lo) - grow, [-np.inf, -np.inf, 0.0])  # the floor stays the floor
     return UHFInputs(
         path=f32(_path(s)),
         multipath=jax.tree_util.tree_map(f32, mp),
         anchor_distance=f32(s.anchor_distance),
         margin=f32(s.margin),
-        filter=rt.default_params(box_lo=lo, box_hi=hi),
+        filter=rt.default_params(box_lo=prior_lo, box_hi=np.asarray(hi) + grow),
+        room_lo=f32(lo),
+        room_hi=f32(hi),
     )
 
 
@@ -279,7 +292,7 @@ def _keys(key):
 def draw_scene(key: jax.Array, inputs: UHFInputs) -> Scene:
     """The tag, its offset and the anchor of the run with key ``key`` (the draws of :func:`run_once`)."""
     k_tag, k_off, k_anc = _keys(key)[:3]
-    box_lo, box_hi = inputs.filter.box_lo, inputs.filter.box_hi
+    box_lo, box_hi = inputs.room_lo, inputs.room_hi
     lo, hi = box_lo + inputs.margin, box_hi - inputs.margin
     tag = lo + rng.uniform(k_tag, (3,)) * (hi - lo)
     offset = rng.uniform(k_off, (), minval=-math.pi, maxval=math.pi)

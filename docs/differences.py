@@ -406,7 +406,7 @@ def page(results: Results) -> str:
         "The theses report one run per setting: a thesis value outside our interval may be that run's "
         "luck as much as a difference of method, which is why the criteria compare our own methods "
         "where the claim is a comparison.\n\n",
-        "| claim | thesis | verdict |\n| --- | --- | --- |\n",
+        "| claim | thesis | verdict | why |\n| --- | --- | --- | --- |\n",
     ]
     verdicts = []
     for claim in CLAIMS:
@@ -415,8 +415,10 @@ def page(results: Results) -> str:
         verdicts.append((claim, figures, holds))
         anchor = claim.source.lower().replace("[", "").replace("]", "").replace(".", "").replace(",", "")
         anchor = "-".join(anchor.split())
+        why = claim.why(results) if callable(claim.why) else claim.why
         lines.append(
-            f"| [{claim.source}](#{anchor}) | {claim.thesis} | {'reproduced' if holds else 'not reproduced'} |\n"
+            f"| [{claim.source}](#{anchor}) | {claim.thesis} | {'reproduced' if holds else 'not reproduced'} "
+            f"| {'open' if _open(why) else 'explained by an experiment'} |\n"
         )
     lines.append("\n")
     for claim, figures, holds in verdicts:
@@ -434,6 +436,11 @@ def page(results: Results) -> str:
         why = claim.why(results) if callable(claim.why) else claim.why
         lines.append(f"**Why, so far:** {why}\n\n")
     return "".join(lines)
+
+
+def _open(why: str) -> bool:
+    """Whether a claim's explanation is still missing (its "why" says so)."""
+    return why.startswith("Not known yet") or "not explained yet" in why or why.startswith("Not yet measured")
 
 
 def needed_experiments() -> list[str]:

@@ -71,16 +71,26 @@ def test_the_readings_differences_are_listed_where_their_result_is_committed(dif
         return {"row": name, "dr_mm_minus_pf": {"mean": mean, "ci95": [mean - 1.0, mean + 1.0]}}
 
     readings = {
+        "runs": 100,
         "settings": [
             {"setting_label": label, "rows": [{"row": "PF-SLAM"}, row("default", 10.0 + i), row("feedback", -2.5 - i)]}
             for i, label in enumerate(sorted(settings))
-        ]
+        ],
     }
     text = differences.page({**committed, "ps-slam-readings": readings})
     section = text.split("## [W] Table 4.2\n")[1].split("\n## ")[0]
     i = sorted(settings).index("table-4.2")
     assert f"PS-SLAM, feedback − PF-SLAM: {-2.5 - i:.1f} [{-3.5 - i:.1f}, {-1.5 - i:.1f}] mm" in section
     assert f"PS-SLAM, default − PF-SLAM: {10.0 + i:.1f}" in section
+    # the feedback reading's interval lies below 0 in every setting: the page says it reverses the order
+    assert "with PS-SLAM's feedback reading, PS − PF" in section
+    assert "53.8 against 82.1 mm. | not reproduced | explained by an experiment |" in text
+    # with every reading's interval reaching above 0, the cause stays open and the closest reading is named
+    for s in readings["settings"]:
+        s["rows"][2] = row("feedback", 0.5)
+    text = differences.page({**committed, "ps-slam-readings": readings})
+    assert "no reading makes PS-SLAM's robot error lower than PF-SLAM's here; the closest is feedback" in text
+    assert "53.8 against 82.1 mm. | not reproduced | open |" in text
 
 
 def test_the_fastslam_explanation_follows_the_readings_numbers(differences, committed):

@@ -1,9 +1,8 @@
-"""The quick variant of ``ps-slam-readings`` end to end: its files, the JSON's layout, the paired
-differences and the tuned jitter and lag (:mod:`jaxnav.experiments.hf_slam.readings`).
+"""The quick variant of ``ps-slam-readings`` end to end: its files, the JSON's layout and the paired
+differences (:mod:`jaxnav.experiments.hf_slam.readings`).
 
-One module fixture runs it with R = 2 runs (one setting, Table 4.2's random trajectory, shortened;
-a 2 × 2 tuning grid on 2 training runs): about a minute on two CPU cores, nearly all of it compiling
-the ten filters of the cell and the tuning grid.
+One module fixture runs it with R = 2 runs (one setting, Table 4.2's random trajectory, shortened),
+nearly all of its time compiling the seven filters of the cell.
 """
 
 import json
@@ -36,15 +35,15 @@ def test_files_and_json_layout(quick):
     for s in stored["settings"]:
         assert set(s["setting"]) == {"density", "reader_mm", "trajectory"} and s["runs"] == RUNS
         labels = [r["row"] for r in s["rows"]]
-        assert labels == ["PF-SLAM"] + [label for label, _ in rd.READINGS] + ["tuned"]
+        assert labels == ["PF-SLAM"] + [label for label, _ in rd.READINGS]
         for r in s["rows"]:
             for col in ("dr_mm", "dt_mm"):
                 v = r[col]
                 assert np.isfinite(v["mean"]) and v["ci95"][0] <= v["mean"] <= v["ci95"][1]
             assert ("dr_mm_minus_pf" in r) == (r["row"] != "PF-SLAM")
-        assert s["rows"][1]["readings"] == {} and s["rows"][5]["readings"] == {"resampled_state": "smoothed"}
+        assert s["rows"][1]["readings"] == {} and s["rows"][3]["readings"] == {"resampled_state": "smoothed"}
     md = (out / f"{NAME}.quick.md").read_text()
-    assert "PS − PF" in md and "feedback" in md and "tuned: jitter" in md
+    assert "PS − PF" in md and "feedback" in md
 
 
 def test_differences_are_paired_by_seed(quick):
@@ -60,15 +59,3 @@ def test_differences_are_paired_by_seed(quick):
         np.testing.assert_allclose(d["mean"], np.mean(ps - pf), rtol=1e-9)
         half = 12.706 * np.std(ps - pf, ddof=1) / np.sqrt(RUNS)  # Student t, 1 degree of freedom
         np.testing.assert_allclose(d["ci95"][1] - d["mean"], half, rtol=1e-3)
-
-
-def test_tuned_jitter_and_lag_come_from_the_training_grid(quick):
-    """The tuned row's jitter and lag are the grid point of the lowest mean robot error on the training
-    worlds (computed again here: the choice is cached per process)."""
-    result, _ = quick
-    (cell,) = registry.get(NAME).cells(True)
-    jitter, lag = rd.tuned_smoother(cell.id, cell.setting, True)
-    tuned = result["settings"][0]["tuned"]
-    assert tuned["lag"] == lag and tuned["jitter_mm"] == pytest.approx(1000 * jitter, rel=1e-6)
-    half = cell.setting.reader_side / 2
-    assert lag in rd._QUICK_LAGS and any(abs(jitter - f * half) < 1e-9 for f in rd._QUICK_JITTERS)

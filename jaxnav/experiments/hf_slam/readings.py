@@ -11,11 +11,10 @@ Each run lays one world and runs every method on it with the same filter key; it
 from the tables', so its seeds are fresh.
 
 Rows per setting: PF-SLAM; PS-SLAM as jaxnav runs it (``default``); one row per non-default value of
-each reading (:data:`READINGS`); and ``tuned``, the default reading with the jitter ``s`` and the lag
-``L`` that gave the lowest mean robot error over :data:`TUNING_RUNS` training runs (a grid of
-:data:`TUNING_JITTERS` × :data:`TUNING_LAGS`, ``vmap``-ed over runs and jitters). The training worlds
-come from their own key (:data:`TUNING_SEED`), never from the test runs'. The grid is evaluated when
-the cell is first traced, once per process.
+each reading (:data:`READINGS`). Two values of ``robot_target``, the mixtures over a tag's ``J``
+smoothed or current particles (``"smoothed_particles"``, ``"particles"``), are not run: they cost
+``K·I·J`` likelihoods per step, about twelve times a row of the others here, and are covered by the
+filter's tests only.
 
 Per row: the robot error ``dr`` and the tag error ``dt`` (mm, :func:`~jaxnav.experiments.hf_slam.simulation.score`),
 mean with 95 % interval, and for PS-SLAM rows the paired difference PS − PF with its interval
@@ -25,17 +24,12 @@ out of every row of its setting and counted.
 
 from __future__ import annotations
 
-import concurrent.futures
-import functools
 import textwrap
-import zlib
 from dataclasses import replace
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxnav.core.filter import check_key
 from jaxnav.experiments import report, stats
 from jaxnav.experiments import sweep as sw
 from jaxnav.experiments.experiment import Cell, Experiment
@@ -52,21 +46,13 @@ from jaxnav.experiments.hf_slam.tables import (
 
 __all__ = [
     "READINGS",
-    "TUNING_JITTERS",
-    "TUNING_LAGS",
-    "TUNING_RUNS",
-    "TUNING_SEED",
     "SETTINGS",
-    "tuning_grid",
-    "tuned_smoother",
     "PS_SLAM_READINGS",
     "EXPERIMENTS",
 ]
 
 READINGS = (
     ("default", ()),
-    ("smoothed particles", (("robot_target", "smoothed_particles"),)),
-    ("tag particles", (("robot_target", "particles"),)),
     ("current mean", (("robot_target", "current_mean"),)),
     ("feedback", (("resampled_state", "smoothed"),)),
     ("history in place", (("history", "in_place"),)),
@@ -74,20 +60,6 @@ READINGS = (
     ("init from robot particles", (("tag_init", "robot_particles"),)),
 )
 """``(row label, PSSLAMConfig fields)``: PS-SLAM's readings run by the experiment, the defaults first."""
-
-TUNING_JITTERS = (1 / 20, 1 / 10, 1 / 5, 1 / 2.5)
-"""The tag jitters of the tuning grid, as fractions of the footprint half-width σ."""
-TUNING_LAGS = (5, 10, 20, 30)
-"""The lags ``L`` of the tuning grid."""
-TUNING_RUNS = 20
-"""Training runs per grid point (the quick variant: 2)."""
-TUNING_SEED = 20_260_406
-"""The seed of the training worlds (folded with the setting's cell id); the test runs' keys come from
-the experiment's key and cell ids (:func:`jaxnav.experiments.sweep.run_key`)."""
-
-_QUICK_JITTERS = (1 / 10, 1 / 5)
-_QUICK_LAGS = (5, 10)
-_QUICK_TUNING_RUNS = 2
 
 _RECT = hf.HFSetting(
     density=4.0, reader_side=0.3, trajectory="rectangle", carpet=(4.0, 3.5), rectangle=FIVE_RECTANGLES[0]
@@ -103,75 +75,23 @@ _COLS = ("dr_mm", "dt_mm")
 
 
 def _methods(setting: hf.HFSetting) -> list[tuple[str, str, hf.HFSetting]]:
-    """``(row, method, setting)`` of PF-SLAM and of PS-SLAM under each reading (the tuned row apart)."""
+    """``(row, method, setting)`` of PF-SLAM and of PS-SLAM under each reading."""
     out = [("PF-SLAM", "pf_slam", setting)]
     out += [(label, "ps_slam", replace(setting, smoother_readings=fields)) for label, fields in READINGS]
     return out
 
 
-def tuning_grid(
-    key: jax.Array, setting: hf.HFSetting, jitters: tuple[float, ...], lags: tuple[int, ...], runs: int
-) -> np.ndarray:
-    """``[len(lags), len(jitters)]`` PS-SLAM's mean robot error ``dr`` (mm) over ``runs`` worlds drawn from
-    ``key``, at each lag and tag jitter (``jitters`` in fractions of the footprint half-width σ).
-
-    One compilation per lag (``L`` sizes the state); the runs and the jitters are ``vmap``-ed.
-    A run that diverged counts as an infinite error, so a grid point where one did is never chosen.
-    """
-    check_key(key)
-    keys = jax.random.split(key, runs)
-    half = setting.reader_side / 2
-    out = np.zeros((len(lags), len(jitters)))
-    for i, lag in enumerate(lags):
-        s = replace(setting, lag=int(lag))
-
-        def one(k, sd, s=s):
-            k_world, k_filter = jax.random.split(k)
-            world = hf.make_world(k_world, s)
-            return hf.score(world, hf.filter_world(k_filter, "ps_slam", s, world, tag_jitter_sd=sd)[0]).dr_mm
-
-        sds = jnp.asarray([half * f for f in jitters], jnp.float32)
-        dr = np.asarray(jax.jit(jax.vmap(jax.vmap(one, (None, 0)), (0, None)))(keys, sds), np.float64)  # [R, J]
-        out[i] = np.where(np.isfinite(dr).all(axis=0), dr.mean(axis=0), np.inf)
-    return out
-
-
-@functools.lru_cache(maxsize=16)
-def tuned_smoother(cell_id: str, setting: hf.HFSetting, quick: bool) -> tuple[float, int]:
-    """``(jitter in m, lag)`` of the lowest mean robot error on the training worlds of ``cell_id`` (:func:`tuning_grid`).
-
-    Computed once per process; it may be called while a cell's function is traced: JAX's trace state
-    is per thread, so in a thread of its own the grid is computed then (concrete numbers) instead of
-    being staged into that trace."""
-    with concurrent.futures.ThreadPoolExecutor(1) as pool:
-        return pool.submit(_tune, cell_id, setting, quick).result()
-
-
-def _tune(cell_id: str, setting: hf.HFSetting, quick: bool) -> tuple[float, int]:
-    jitters, lags, runs = (
-        (_QUICK_JITTERS, _QUICK_LAGS, _QUICK_TUNING_RUNS) if quick else (TUNING_JITTERS, TUNING_LAGS, TUNING_RUNS)
-    )
-    key = jax.random.fold_in(jax.random.PRNGKey(TUNING_SEED), zlib.crc32(cell_id.encode()) & 0x7FFFFFFF)
-    grid = tuning_grid(key, setting, jitters, lags, runs)
-    i, j = np.unravel_index(int(np.argmin(grid)), grid.shape)
-    return float(jitters[j] * setting.reader_side / 2), int(lags[i])
-
-
-def _cell_fn(cell_id: str, setting: hf.HFSetting, quick: bool):
-    """``key -> {"ROW/dr_mm", "ROW/dt_mm", "tuned/jitter_mm", "tuned/lag"}``: every row's errors on one world."""
+def _cell_fn(setting: hf.HFSetting):
+    """``key -> {"ROW/dr_mm", "ROW/dt_mm"}``: every row's errors on one world, with one filter key."""
 
     def fn(key):
         k_world, k_filter = jax.random.split(key)
         world = hf.make_world(k_world, setting)
-        jitter, lag = tuned_smoother(cell_id, setting, quick)
-        rows = _methods(setting) + [("tuned", "ps_slam", replace(setting, smoother_jitter=jitter, lag=lag))]
         out = {}
-        for row, method, s in rows:
+        for row, method, s in _methods(setting):
             errors = hf.score(world, hf.run_method(k_filter, method, s, world))
             for col in _COLS:
                 out[f"{row}/{col}"] = getattr(errors, col)
-        out["tuned/jitter_mm"] = jnp.float32(1000 * jitter)
-        out["tuned/lag"] = jnp.int32(lag)
         return out
 
     return fn
@@ -183,12 +103,12 @@ def _cells(quick: bool) -> list[Cell]:
     for label, s in chosen:
         s = quick_setting(s) if quick else s
         cell_id = f"readings|{label}"
-        out.append(Cell(cell_id, label, "ps_slam", s, _cell_fn(cell_id, s, quick)))
+        out.append(Cell(cell_id, label, "ps_slam", s, _cell_fn(s)))
     return out
 
 
 def _row_labels() -> list[str]:
-    return ["PF-SLAM"] + [label for label, _ in READINGS] + ["tuned"]
+    return ["PF-SLAM"] + [label for label, _ in READINGS]
 
 
 def _summary(raw: dict, cells: list[Cell], quick: bool) -> dict:
@@ -211,17 +131,12 @@ def _summary(raw: dict, cells: list[Cell], quick: bool) -> dict:
         readings = dict(READINGS)
         for row in rows:
             row["readings"] = dict(readings.get(row["row"], ()))
-        tuned = {
-            "jitter_mm": float(np.asarray(values["tuned/jitter_mm"])[0]),
-            "lag": int(np.asarray(values["tuned/lag"])[0]),
-        }
         out.append(
             {
                 "setting_label": c.row,
                 "setting": setting_label(c.setting),
                 "runs": int(diverged.size),
                 "diverged_runs": int(diverged.sum()),
-                "tuned": tuned,
                 "rows": rows,
             }
         )
@@ -230,8 +145,7 @@ def _summary(raw: dict, cells: list[Cell], quick: bool) -> dict:
 
 NOTES = (
     "PS − PF: the paired difference per seed (negative: PS-SLAM better). 'default' is PS-SLAM as jaxnav runs it "
-    "(tag jitter σ/10, L = 20); 'tuned' is the default reading with the jitter and lag of the lowest mean robot "
-    "error on separate training runs. Thesis: Table 4.1 PS 53.8 / PF 82.1 mm, Table 4.2 PS 29.1 / PF 66.7 mm."
+    "(tag jitter σ/10, L = 20). Thesis: Table 4.1 PS 53.8 / PF 82.1 mm, Table 4.2 PS 29.1 / PF 66.7 mm."
 )
 
 
@@ -266,11 +180,7 @@ def render(result: dict) -> str:
 
 def _setting_text(s: dict) -> str:
     st = s["setting"]
-    t = s["tuned"]
-    return (
-        f"{st['density']:g} tags/m², {st['reader_mm']:g} mm readers, {st['trajectory']}; "
-        f"tuned: jitter {t['jitter_mm']:.3g} mm, L = {t['lag']}"
-    )
+    return f"{st['density']:g} tags/m², {st['reader_mm']:g} mm readers, {st['trajectory']}"
 
 
 def _footer(s: dict) -> list[str]:

@@ -261,13 +261,8 @@ def _refresh_tried(result: dict) -> str:
     """The combined weighting under light multipath with [A]'s Gaussian refresh and with the kernel refresh."""
     parts = []
     for refresh in ("gaussian", "kernel"):
-        s = _uhf_final(result, "combined", multipath="light", refresh=refresh)
-        (d,) = [
-            d
-            for d in result["diagnostics"]
-            if d["setting"]["multipath"] == "light" and d["setting"]["refresh"] == refresh
-        ]
-        parts.append(f"{refresh} refresh {_summary(s, 'm')}, {d['final_lost_runs']['combined']} runs lost")
+        s, lost = _light_combined(result, refresh=refresh)
+        parts.append(f"{refresh} refresh {_summary(s, 'm')}, {lost} runs lost")
     return (
         f"The kernel (regularised) refresh in place of [A]'s Gaussian one, in [uhf-refresh](uhf-refresh.md) "
         f"({result['runs']} runs, light multipath, combined weighting): {'; '.join(parts)}."

@@ -41,7 +41,13 @@ extensions = [
 
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
-nb_execution_mode = "off"  # the notebooks are committed with their outputs and executed by the test suite
+# The notebooks of notebooks/ are committed with their outputs (and executed by the test suite); the family
+# guides are executed pages (MyST notebooks: ``execution_mode: cache`` in their front matter), run by the
+# build and cached under _build/.jupyter_cache, so a build fails when one of their cells does.
+nb_execution_mode = "off"
+nb_execution_raise_on_error = True
+nb_execution_show_tb = True
+nb_execution_timeout = 600  # s per cell
 nb_merge_streams = True
 
 autodoc_member_order = "bysource"

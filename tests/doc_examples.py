@@ -1,6 +1,6 @@
 """Helpers of the documentation's tests: the scripts of ``docs/`` loaded as modules, and the Python
-examples of documentation pages run as written (every ```python block of a page in order, in one
-namespace per page, all pages in one child process).
+examples of documentation pages run as written (every ```python block and every ```{code-cell} python of
+an executed page, in order, in one namespace per page, all pages in one child process).
 
 The caller chooses the child's XLA flags: XLA's defaults for pages whose examples run long (the README's
 study is 100 runs of 120 steps; ``xla_defaults_env`` of tests/conftest.py), the suite's compile-fast flags
@@ -30,14 +30,18 @@ def load_docs_script(name: str, module_name: str | None = None):
     return module
 
 
+# A fenced Python block, or a code cell of an executed (myst-nb) page; its body is the group.
+PYTHON_BLOCK = r"^```(?:python|\{code-cell\} python)\n(.*?)^```"
+
 # Runs every page's Python blocks, one namespace per page, in one process, and prints one JSON line:
 # {page: null, or the traceback of the block that failed}.
 _RUN_EXAMPLES = """
 import json, re, sys, traceback, types
 from pathlib import Path
+PATTERN = sys.argv[2]
 outcomes = {}
-for page in sys.argv[2:]:
-    blocks = re.findall(r"^```python\\n(.*?)^```", (Path(sys.argv[1]) / page).read_text(), flags=re.S | re.M)
+for page in sys.argv[3:]:
+    blocks = re.findall(PATTERN, (Path(sys.argv[1]) / page).read_text(), flags=re.S | re.M)
     module = types.ModuleType("docs_example")  # a real module: dataclasses look their class's module up
     sys.modules[module.__name__] = module
     try:
@@ -51,15 +55,16 @@ print("OUTCOMES " + json.dumps(outcomes))
 
 
 def python_blocks(path: pathlib.Path) -> list[str]:
-    """The ```python fenced blocks of a Markdown file (illustrations use ```text or ```{code-block})."""
-    return re.findall(r"^```python\n(.*?)^```", path.read_text(), flags=re.S | re.M)
+    """The ```python fenced blocks and ```{code-cell} python cells of a Markdown file (illustrations use
+    ```text or ```{code-block})."""
+    return re.findall(PYTHON_BLOCK, path.read_text(), flags=re.S | re.M)
 
 
 def run_pages(pages: tuple[str, ...], cwd: pathlib.Path, env: dict[str, str]) -> dict[str, str | None]:
     """``{page: None, or the traceback of its block that failed}`` for ``pages`` (paths from the
     repository root), run in one child process in ``cwd`` with ``env`` (a non-interactive matplotlib)."""
     proc = subprocess.run(
-        [sys.executable, "-c", _RUN_EXAMPLES, str(ROOT), *pages],
+        [sys.executable, "-c", _RUN_EXAMPLES, str(ROOT), PYTHON_BLOCK, *pages],
         cwd=cwd,
         env={**env, "MPLBACKEND": "Agg"},
         capture_output=True,

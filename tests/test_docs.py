@@ -180,28 +180,3 @@ def test_committed_results_have_the_runs_their_pages_promise():
         if result["runs"] < generate.runs_needed(name, result):
             short.append(f"{name}: {result['runs']} runs, at least {generate.runs_needed(name, result)} expected")
     assert not short, short
-
-
-FAMILY_GUIDES = {
-    "classical.md": "mcl_quickstart",
-    "hf-rfid-slam.md": "hf_rfid_slam",
-    "ir.md": "ir_positioning",
-    "uhf-rfid.md": "uhf_rfid_localization",
-}
-
-
-@pytest.mark.parametrize(("guide", "notebook"), FAMILY_GUIDES.items())
-def test_family_guides_open_on_a_first_run(guide, notebook):
-    """Each family's guide shows, on its first screen (its first 45 lines), a command to run, the
-    figure it draws (a file that exists) and the notebook that goes further."""
-    head = "\n".join((DOCS / "guides" / guide).read_text().splitlines()[:45])
-    assert "## A first run" in head and "```bash\njaxnav " in head, guide
-    figures = re.findall(r"^!\[.*\]\((\S+?)\)$", head, flags=re.M)  # alt texts may hold brackets: [A]'s
-    assert figures, f"{guide}: no figure on its first screen"
-    for figure in figures:
-        generated = re.fullmatch(r"/_generated/reproductions/([\w.-]+\.png)", figure)  # copied at build time
-        source = (
-            ROOT / "benchmarks" / "results" / "experiments" / generated[1] if generated else DOCS / figure.lstrip("/")
-        )
-        assert source.exists(), f"{guide}: {figure} ({source}) does not exist"
-    assert f"{{doc}}`/notebooks/{notebook}`" in head, f"{guide}: its notebook is not linked on its first screen"

@@ -98,28 +98,54 @@ _READINGS_OPTIONS = (
 )
 
 
+# The ablations of PS-SLAM's readings against PF-SLAM, each on seeds of its own: every reading but the
+# mixtures, then the two mixtures of the robot's weighting and a jitter and lag tuned on training worlds.
+ABLATIONS = {
+    "ps-slam-readings": "runs PS-SLAM under each but the two mixtures",
+    "ps-slam-mixtures-tuned": (
+        "runs it weighting the robot against the mixture over a tag's smoothed or current particles, and with "
+        "the jitter and lag that gave the lowest robot error on separate training worlds"
+    ),
+}
+
+
 def _readings_tried(results: Results) -> str:
-    """What the readings' ablation is, and whether its result is committed."""
-    if "ps-slam-readings" not in results:
+    """What the readings' ablations are, and whether their results are committed."""
+    done = [n for n in ABLATIONS if n in results]
+    if not done:
         return (
             _READINGS_OPTIONS
             + "Their ablation against PF-SLAM on the same seeds, `ps-slam-readings`, has no committed result yet."
         )
-    return _READINGS_OPTIONS + (
-        f"Their ablation against PF-SLAM on the same seeds, [ps-slam-readings](ps-slam-readings.md) "
-        f"({results['ps-slam-readings']['runs']} runs per setting, fresh seeds), runs PS-SLAM under each."
+    return _READINGS_OPTIONS + " ".join(
+        f"[{n}]({n}.md) ({results[n]['runs']} runs per setting, fresh seeds, paired with PF-SLAM by seed) "
+        f"{ABLATIONS[n]}."
+        for n in done
     )
+
+
+def _ablation_settings(results: Results, setting: str) -> list[tuple[str, dict]]:
+    """``(experiment, its entry for setting)`` of each committed ablation."""
+    return [(n, s) for n in ABLATIONS if n in results for s in results[n]["settings"] if s["setting_label"] == setting]
 
 
 def _readings_why(results: Results, setting: str, otherwise: str) -> str:
     """Whether some reading of Algorithm 2 makes PS-SLAM's robot error lower than PF-SLAM's in ``setting``
-    of ``ps-slam-readings`` (its paired difference's interval wholly below 0), or ``otherwise`` without it."""
-    if "ps-slam-readings" not in results:
+    of the ablations (its paired difference's interval wholly below 0), or ``otherwise`` without them."""
+    rows = [(s, r) for _, s in _ablation_settings(results, setting) for r in s["rows"] if "dr_mm_minus_pf" in r]
+    if not rows:
         return otherwise
-    (s,) = [s for s in results["ps-slam-readings"]["settings"] if s["setting_label"] == setting]
-    rows = [r for r in s["rows"] if "dr_mm_minus_pf" in r]
-    best = min(rows, key=lambda r: r["dr_mm_minus_pf"]["mean"])
+    entry, best = min(rows, key=lambda sr: sr[1]["dr_mm_minus_pf"]["mean"])
     d = best["dr_mm_minus_pf"]
+    if d["ci95"][1] < 0 and best["row"] == "tuned":
+        jitter, lag = entry["tuned"]["jitter_mm"], entry["tuned"]["lag"]
+        inside = "within" if 20 <= lag <= 30 else "outside"
+        return (
+            f"The smoother's tuning reverses the order: with the jitter and lag of the lowest robot error on "
+            f"separate training worlds (jitter {jitter:.3g} mm, L = {lag}), PS − PF = {_summary(d, 'mm')}. "
+            f"[W] gives no jitter, and this lag lies {inside} its 20–30; jaxnav's default (σ/10, L = 20) is "
+            "not tuned to this setting."
+        )
     if d["ci95"][1] < 0:
         return (
             f"A reading the text allows reverses the order: with PS-SLAM's {best['row']} reading, PS − PF = "
@@ -127,8 +153,12 @@ def _readings_why(results: Results, setting: str, otherwise: str) -> str:
         )
     return (
         f"Not known yet, but not one of Algorithm 2's open choices: no reading makes PS-SLAM's robot error lower "
-        f"than PF-SLAM's here; the closest is {best['row']}, PS − PF = {_summary(d, 'mm')}."
+        f"than PF-SLAM's here; the closest is {_row_name(best['row'])}, PS − PF = {_summary(d, 'mm')}."
     )
+
+
+def _row_name(row: str) -> str:
+    return "the tuned jitter and lag" if row == "tuned" else row
 
 
 def _ps_beats_pf(table: str, path: str, ps: float, pf: float, readings: str, why: str) -> Claim:
@@ -406,13 +436,17 @@ def _limits_why(result: dict) -> str:
 
 
 def _readings_lines(results: Results, setting: str) -> list[str]:
-    """Each reading's paired difference PS − PF of the robot error in ``ps-slam-readings``'s ``setting``."""
-    (s,) = [s for s in results["ps-slam-readings"]["settings"] if s["setting_label"] == setting]
-    return [
-        f"- PS-SLAM, {r['row']} − PF-SLAM: {_summary(r['dr_mm_minus_pf'], 'mm')}\n"
-        for r in s["rows"]
-        if "dr_mm_minus_pf" in r
-    ]
+    """Each reading's paired difference PS − PF of the robot error in each ablation's ``setting``."""
+    lines = []
+    for name, s in _ablation_settings(results, setting):
+        tuned = f"; tuned: jitter {s['tuned']['jitter_mm']:.3g} mm, L = {s['tuned']['lag']}" if "tuned" in s else ""
+        lines.append(f"\nIn [{name}]({name}.md){tuned}:\n\n")
+        lines += [
+            f"- PS-SLAM, {r['row']} − PF-SLAM: {_summary(r['dr_mm_minus_pf'], 'mm')}\n"
+            for r in s["rows"]
+            if "dr_mm_minus_pf" in r
+        ]
+    return lines
 
 
 def _number(x: float, units: str) -> str:
@@ -459,8 +493,8 @@ def page(results: Results) -> str:
         lines.append(f"\n**Verdict: {verdict}.** The claim holds if {claim.criterion}\n\n")
         tried = claim.tried(results) if callable(claim.tried) else claim.tried
         lines.append(f"**Tried:** {tried or 'nothing yet.'}\n\n")
-        if claim.readings is not None and "ps-slam-readings" in results:
-            lines.append("The robot error under each reading, paired by seed (negative: PS-SLAM better):\n\n")
+        if claim.readings is not None and _ablation_settings(results, claim.readings):
+            lines.append("The robot error under each reading, paired by seed (negative: PS-SLAM better):\n")
             lines += _readings_lines(results, claim.readings) + ["\n"]
         why = claim.why(results) if callable(claim.why) else claim.why
         lines.append(f"**Why, so far:** {why}\n\n")
@@ -477,7 +511,7 @@ def needed_experiments() -> list[str]:
     return sorted({n for c in CLAIMS for n in c.experiments})
 
 
-OPTIONAL_EXPERIMENTS = ("ps-slam-readings",)
+OPTIONAL_EXPERIMENTS = tuple(ABLATIONS)
 """Experiments whose results the page shows where they are committed."""
 
 

@@ -93,6 +93,49 @@ def test_the_readings_differences_are_listed_where_their_result_is_committed(dif
     assert "53.8 against 82.1 mm. | not reproduced | open |" in text
 
 
+def test_the_mixtures_and_tuned_readings_join_the_comparison(differences, committed):
+    """A ``ps-slam-mixtures-tuned`` result is listed beside ``ps-slam-readings``' under each PS-SLAM claim,
+    with its tuned jitter and lag, and its rows take part in the verdict's "why"."""
+
+    def row(name, mean):
+        return {"row": name, "dr_mm_minus_pf": {"mean": mean, "ci95": [mean - 1.0, mean + 1.0]}}
+
+    settings = sorted({c.readings for c in differences.CLAIMS if c.readings is not None})
+    readings = {
+        "runs": 100,
+        "settings": [{"setting_label": x, "rows": [{"row": "PF-SLAM"}, row("feedback", 3.0)]} for x in settings],
+    }
+    mixtures = {
+        "runs": 100,
+        "settings": [
+            {
+                "setting_label": x,
+                "tuned": {"jitter_mm": 7.5, "lag": 10},
+                "rows": [{"row": "PF-SLAM"}, row("tag particles", 2.0), row("tuned", 4.0)],
+            }
+            for x in settings
+        ],
+    }
+    results = {**committed, "ps-slam-readings": readings, "ps-slam-mixtures-tuned": mixtures}
+    text = differences.page(results)
+    section = text.split("## [W] Table 4.2\n")[1].split("\n## ")[0]
+    assert "[ps-slam-mixtures-tuned](ps-slam-mixtures-tuned.md) (100 runs per setting" in section
+    assert "In [ps-slam-mixtures-tuned](ps-slam-mixtures-tuned.md); tuned: jitter 7.5 mm, L = 10:" in section
+    assert "PS-SLAM, tag particles − PF-SLAM: 2.0 [1.0, 3.0] mm" in section
+    assert "the closest is tag particles" in section
+    for s in mixtures["settings"]:
+        s["rows"][1] = row("tag particles", -5.0)
+    text = differences.page(results)
+    assert "with PS-SLAM's tag particles reading, PS − PF = -5.0 [-6.0, -4.0] mm" in text
+    assert "53.8 against 82.1 mm. | not reproduced | explained by an experiment |" in text
+    # a tuned jitter and lag that beat PF-SLAM are named as such, with the lag set against [W]'s 20–30
+    for s in mixtures["settings"]:
+        s["rows"][2] = row("tuned", -8.0)
+    text = differences.page(results)
+    assert "(jitter 7.5 mm, L = 10), PS − PF = -8.0 [-9.0, -7.0] mm" in text
+    assert "this lag lies outside its 20–30" in text
+
+
 def test_the_fastslam_explanation_follows_the_readings_numbers(differences, committed):
     """The reading nearest to [W]'s FastSLAM is computed: with the narrow Gaussian moved to PF-SLAM's level,
     no reading comes near and the page says the difference is not explained."""

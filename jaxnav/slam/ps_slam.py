@@ -31,8 +31,8 @@ independent of the map size; the memory is ``O(max_tags·L·J)``.
 **Readings**
 
 [W] Alg. 2 and §4.1–4.2 leave the following open. Each is a static field of :class:`PSSLAMConfig`
-whose default is the reading above; the ablation ``ps-slam-readings``
-(:mod:`jaxnav.experiments.hf_slam.readings`) runs every value against PF-SLAM.
+whose default is the reading above; the ablations ``ps-slam-readings`` and ``ps-slam-mixtures-tuned``
+(:mod:`jaxnav.experiments.hf_slam.readings`) run every value against PF-SLAM.
 
 ==========  ====================================================  ========================================
 Alg. 2      what the text leaves open                             option (default first)

@@ -33,6 +33,7 @@ from jaxnav.core import filter as filter_api
 from jaxnav.core.particle_filter import finish_step
 from jaxnav.demo import demo_setting
 from jaxnav.experiments import registry, sweep
+from jaxnav.experiments.hf_slam import readings
 from jaxnav.localization import augmented_mcl, ekf, grid, ir_mcl, kld_mcl, mcl, rfid_anchor, rfid_tag, ukf
 from jaxnav.models import hf_rfid
 from jaxnav.models import uhf_rfid as U
@@ -71,6 +72,7 @@ SEARCHED_NAMES = [m.__name__ for m in SEARCHED] + [
     "jaxnav.core.batch",
     "jaxnav.experiments.registry",
     "jaxnav.experiments.sweep",
+    "jaxnav.experiments.hf_slam.readings",
     "jaxnav.calibration",
 ]
 KERNEL_PARTS = {"kernel", "sharded_kernel", "move_and_weight", "resample", "slam_step", "log_likelihood"}
@@ -227,6 +229,8 @@ def _calls() -> dict[str, tuple[Any, tuple, dict, bool]]:
         "sweep.sweep": (sweep.sweep, (), {"cells": [], "runs": 1}, False),
         "sweep.cell_key": (sweep.cell_key, (), {"cell_id": "a"}, False),
         "sweep.run_key": (sweep.run_key, (), {"cell_id": "a", "r": 0}, False),
+        # the key is checked before the setting is read
+        "readings.tuning_grid": (readings.tuning_grid, (None, (0.1,), (5,), 1), {}, False),
     }
     for mod in FILTER_MODULES:
         for name in ("step", "run"):

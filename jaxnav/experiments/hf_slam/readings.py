@@ -274,6 +274,11 @@ def _cell(v: dict, digits: int = 1) -> str:
     return report.interval(v, digits, report.NA, note=False)
 
 
+def _row_cells(r: dict) -> list[str]:
+    """One row of the tables: the reading, then ``dr``, ``dr`` PS − PF, ``dt``, ``dt`` PS − PF."""
+    return [r["row"]] + [_cell(r[k]) if k in r else "" for k in ("dr_mm", "dr_mm_minus_pf", "dt_mm", "dt_mm_minus_pf")]
+
+
 def render(result: dict) -> str:
     """Terminal: per setting, each row's ``dr`` and ``dt`` (mean [95 % interval]) and PS − PF."""
     lines = [
@@ -284,16 +289,7 @@ def render(result: dict) -> str:
         report.Column(h, 20) for h in ("dr [mm]", "dr PS − PF", "dt [mm]", "dt PS − PF")
     ]
     for s in result["settings"]:
-        cells = [
-            [
-                r["row"],
-                _cell(r["dr_mm"]),
-                _cell(r["dr_mm_minus_pf"]) if "dr_mm_minus_pf" in r else "",
-                _cell(r["dt_mm"]),
-                _cell(r["dt_mm_minus_pf"]) if "dt_mm_minus_pf" in r else "",
-            ]
-            for r in s["rows"]
-        ]
+        cells = [_row_cells(r) for r in s["rows"]]
         title = [f"{s['setting_label']} — {_setting_text(s)}"]
         lines.append(report.text(columns, cells, title, _footer(s)))
     return "\n\n".join(lines + [textwrap.fill(result.get("notes", ""), 110)])
@@ -319,16 +315,7 @@ def markdown(result: dict) -> str:
         "mean [95 % interval]; PS − PF paired by seed)"
     ]
     for s in result["settings"]:
-        rows = [
-            [
-                r["row"],
-                _cell(r["dr_mm"]),
-                _cell(r["dr_mm_minus_pf"]) if "dr_mm_minus_pf" in r else "",
-                _cell(r["dt_mm"]),
-                _cell(r["dt_mm_minus_pf"]) if "dt_mm_minus_pf" in r else "",
-            ]
-            for r in s["rows"]
-        ]
+        rows = [_row_cells(r) for r in s["rows"]]
         parts.append(
             report.markdown(
                 ["reading", "dr [mm]", "dr PS − PF [mm]", "dt [mm]", "dt PS − PF [mm]"],

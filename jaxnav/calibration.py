@@ -229,6 +229,11 @@ def _is_float(value: Any) -> bool:
     return jnp.issubdtype(np.asarray(value).dtype, jnp.floating)
 
 
+def _strongly_typed(leaf: Any) -> Any:
+    """``leaf`` with JAX's weak type dropped (same dtype and values); other leaves unchanged."""
+    return jnp.asarray(leaf, dtype=leaf.dtype) if isinstance(leaf, jax.Array) and leaf.weak_type else leaf
+
+
 def fit(
     objective: Callable[[jax.Array, Any], jax.Array],
     key: jax.Array,
@@ -335,7 +340,9 @@ def fit(
         )
         return optax.apply_updates(u, updates), opt_state, value
 
-    u, opt_state = u0, opt.init(u0)
+    # optax initialises some counters as weak-typed scalars (L-BFGS's line-search step count) that come
+    # back from the first update strongly typed: fix their types now, or step 2 compiles `update` again.
+    u, opt_state = u0, jax.tree_util.tree_map(_strongly_typed, opt.init(u0))
     losses, trace = [], [[np.asarray(x) for x in u0]]
     bar = Progress(steps, "fit", enabled=progress, note="compiling the objective and its gradient…", unit="step")
     try:

@@ -104,6 +104,15 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: rank.get(item.nodeid.partition("::")[0], len(SLOW_FILES)))  # stable: files stay whole
 
 
+def pytest_collection_finish(session):
+    """Move what the imports and the collection made (modules, functions, JAX's tables) out of the
+    garbage collector's reach: a full collection, after each file and whenever Python starts one,
+    then scans only what the tests made (tests/localization on two workers: 28.7 → 17.6 s of
+    collection)."""
+    gc.collect()
+    gc.freeze()
+
+
 # --------------------------------------------------------------------------- where the compile time goes
 
 # jax.monitoring's duration events of the three stages between a Python function and a program.

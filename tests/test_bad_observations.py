@@ -6,6 +6,12 @@ in ``info.num_ignored``, and every estimate stays finite. An integer mask of 0/1
 the boolean one; other integers (a 0/2 mask, which a bitwise ``&`` would turn into "drop every
 slot") are refused on the host and read as nonzero = set inside a caller's ``jit``; a float mask or
 float ids are refused.
+
+The filters are the landmark filters' setups of ``test_bad_input.py`` (same states, configs,
+parameters, keys and inputs), run the way that file runs them (:func:`~tests.test_bad_input._call`
+on the host, :func:`~tests.test_bad_input._jit_run` inside a caller's ``jit``): the programs of a
+clean run are then the same programs, compiled once for both files (the suite shares one persistent
+compilation cache). None of the claims depends on the sizes.
 """
 
 import jax
@@ -13,54 +19,25 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxnav.demo import demo_setting
-from jaxnav.localization import ekf, grid, mcl, ukf
 from jaxnav.models import hf_rfid
 from jaxnav.models.motion import OmniNoise
-from jaxnav.sim import landmark_world as world
-from jaxnav.sim import trajectories
-from jaxnav.slam import ekf_slam, fastslam, pf_slam
+from jaxnav.slam import pf_slam
+from tests.test_bad_input import T, _call, _jit_run, setups
 
-START = jnp.asarray([5.0, 1.5, 0.0])
-STEPS = 12
+BAD_STEP = 1  # the step whose first slot the tests poison: steps follow it, over which the effect could spread
 
 
-def _world():
-    _, p = demo_setting(10)
-    controls = trajectories.loop_controls(STEPS, 0.5, 0.21, 0.25)
-    sim = world.simulate(jax.random.PRNGKey(1), p.landmarks, START, controls, p.motion, p.sensor)
-    assert bool(sim.observations.mask[3, 0])  # the slot the tests poison is a real observation
-    return p, controls, sim.observations
+def _setup(name):
+    """``(setup, controls, observations)`` of the filter ``name`` (``test_bad_input.setups``)."""
+    s = setups()[name]
+    controls, obs = s.inputs
+    assert bool(obs.mask[BAD_STEP, 0])  # the slot the tests poison is a real observation
+    return s, controls, obs
 
 
-def _filters(p):
-    """``name -> run(observations)`` for every landmark filter, on the demo room."""
-    kp = ekf.KalmanParams(p.motion, p.sensor, p.landmarks)
-    cov = jnp.diag(jnp.asarray([1e-3, 1e-3, 1e-4]))
-    mcl_config = mcl.MCLConfig(num_particles=64)
-    grid_config = grid.GridConfig((0.0, 10.0, 0.0, 10.0), 20, 20, 8, "velocity")
-    slam_config = ekf_slam.EKFSLAMConfig(num_landmarks=p.landmarks.shape[0])
-    slam_params = ekf_slam.EKFSLAMParams(p.motion, p.sensor)
-
-    def fs(version):
-        config = fastslam.FastSLAMConfig(num_particles=16, num_landmarks=p.landmarks.shape[0], version=version)
-        params = fastslam.FastSLAMParams(p.motion, p.sensor)
-        state = fastslam.init(jax.random.PRNGKey(0), config, params, START)
-        return lambda u, o: fastslam.run(jax.random.PRNGKey(2), state, config, params, u, o)
-
-    return {
-        "ekf": lambda u, o: ekf.run(None, ekf.init(None, ekf.EKFConfig(), kp, START, cov), ekf.EKFConfig(), kp, u, o),
-        "ukf": lambda u, o: ukf.run(None, ukf.init(None, ukf.UKFConfig(), kp, START, cov), ukf.UKFConfig(), kp, u, o),
-        "mcl": lambda u, o: mcl.run(
-            jax.random.PRNGKey(2), mcl.init(jax.random.PRNGKey(0), mcl_config, p, START), mcl_config, p, u, o
-        ),
-        "grid": lambda u, o: grid.run(None, grid.init(None, grid_config, p, START), grid_config, p, u, o),
-        "ekf_slam": lambda u, o: ekf_slam.run(
-            None, ekf_slam.init(None, slam_config, slam_params, START, cov), slam_config, slam_params, u, o
-        ),
-        "fastslam1": fs(1),
-        "fastslam2": fs(2),
-    }
+def _run(s, u, obs):
+    """The filter's ``run`` on the host, on these controls and observations."""
+    return _call(s, inputs=(u, obs))()
 
 
 NAMES = ["ekf", "ukf", "mcl", "grid", "ekf_slam", "fastslam1", "fastslam2"]
@@ -69,54 +46,51 @@ NAMES = ["ekf", "ukf", "mcl", "grid", "ekf_slam", "fastslam1", "fastslam2"]
 @pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("value", [np.nan, np.inf])
 def test_a_non_finite_valid_slot_is_refused_on_the_host(name, value):
-    p, u, obs = _world()
-    bad = obs._replace(z=obs.z.at[3, 0, 0].set(value))
-    with pytest.raises(ValueError, match=r"observations.z holds NaN or infinite values .* index \(3, 0\)"):
-        _filters(p)[name](u, bad)
+    s, u, obs = _setup(name)
+    bad = obs._replace(z=obs.z.at[BAD_STEP, 0, 0].set(value))
+    with pytest.raises(ValueError, match=rf"observations.z holds NaN or infinite values .* index \({BAD_STEP}, 0\)"):
+        _run(s, u, bad)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_a_non_finite_valid_slot_under_jit_is_dropped_and_counted(name):
-    p, u, obs = _world()
-    run = _filters(p)[name]
-    bad = obs._replace(z=obs.z.at[3, 0, 1].set(jnp.inf))
-    final, trace = jax.jit(lambda o: run(u, o))(bad)
+    s, u, obs = _setup(name)
+    bad = obs._replace(z=obs.z.at[BAD_STEP, 0, 1].set(jnp.inf))
+    final, trace = _jit_run(s, (u, bad))
     for leaf in jax.tree_util.tree_leaves((final, trace.estimate)):
         if jnp.issubdtype(leaf.dtype, jnp.floating):
             assert np.all(np.isfinite(np.asarray(leaf)) | np.isneginf(np.asarray(leaf))), name
-    _, clean = run(u, obs)
+    _, clean = _run(s, u, obs)
     np.testing.assert_array_equal(
-        np.asarray(trace.num_ignored), np.asarray(clean.num_ignored) + (np.arange(STEPS) == 3)
+        np.asarray(trace.num_ignored), np.asarray(clean.num_ignored) + (np.arange(T) == BAD_STEP)
     )
     # the same as masking the slot out
-    _, masked = run(u, obs._replace(mask=obs.mask.at[3, 0].set(False)))
+    _, masked = _run(s, u, obs._replace(mask=obs.mask.at[BAD_STEP, 0].set(False)))
     np.testing.assert_allclose(np.asarray(trace.estimate), np.asarray(masked.estimate), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_an_integer_mask_of_zeros_and_ones_is_the_boolean_mask_and_others_are_refused(name):
-    p, u, obs = _world()
-    run = _filters(p)[name]
-    _, expected = run(u, obs)
-    _, ones = run(u, obs._replace(mask=obs.mask.astype(jnp.int32)))
+    s, u, obs = _setup(name)
+    _, expected = _run(s, u, obs)
+    _, ones = _run(s, u, obs._replace(mask=obs.mask.astype(jnp.int32)))
     np.testing.assert_array_equal(np.asarray(ones.estimate), np.asarray(expected.estimate))
     twos = obs._replace(mask=obs.mask.astype(jnp.int32) * 2)
     with pytest.raises(ValueError, match=r"observations.mask must be boolean or integers 0 and 1, got 2 at index"):
-        run(u, twos)
+        _run(s, u, twos)
     # inside a caller's jit: nonzero = set. The caller's jit is another XLA program than the
     # filter's own, which may round differently (measured: up to 2.4e-6 m): equal to float32 rounding
-    _, traced = jax.jit(lambda o: run(u, o))(twos)
+    _, traced = _jit_run(s, (u, twos))
     np.testing.assert_allclose(np.asarray(traced.estimate), np.asarray(expected.estimate), rtol=1e-5, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_float_masks_and_float_ids_are_refused_by_name(name):
-    p, u, obs = _world()
-    run = _filters(p)[name]
+    s, u, obs = _setup(name)
     with pytest.raises(ValueError, match="observations.mask must be a boolean array"):
-        run(u, obs._replace(mask=obs.mask.astype(jnp.float32)))
+        _run(s, u, obs._replace(mask=obs.mask.astype(jnp.float32)))
     with pytest.raises(ValueError, match="observations.ids must be an integer array"):
-        run(u, obs._replace(ids=obs.ids.astype(jnp.float32)))
+        _run(s, u, obs._replace(ids=obs.ids.astype(jnp.float32)))
 
 
 def test_tag_detections_with_an_integer_mask_update_the_tags():

@@ -3,6 +3,7 @@ through the filters' resampling (selected by the config's ``gradient``)."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -22,11 +23,10 @@ TRUE_SD = (0.2, 0.05)  # range (m) and bearing (rad) noise of the simulated data
 TRUE_POSE_SD = (0.04, 0.04, 0.02)  # additive pose noise per step (m, m, rad) of the motion-noise data
 
 
-def _observed_information(total, x, step=1e-2):
-    """The observed information ``−∇²total(x)`` by central differences of the compiled gradient (steps of
-    ``step`` in each coordinate, symmetrised): within 1e-4 of ``jax.hessian`` here, whose
-    forward-over-reverse program of a 100-step filter takes four times as long to compile."""
-    grad = jax.jit(jax.grad(total))
+def _observed_information(grad, x, step=1e-2):
+    """The observed information ``−∇²total(x)`` by central differences of ``grad``, the compiled gradient
+    of ``total`` (steps of ``step`` in each coordinate, symmetrised): within 1e-4 of ``jax.hessian``
+    here, whose forward-over-reverse program of a 100-step filter takes four times as long to compile."""
     x = jnp.asarray(x)
     rows = [
         (np.asarray(grad(x + step * e), np.float64) - np.asarray(grad(x - step * e), np.float64)) / (2 * step)
@@ -53,6 +53,38 @@ SENSOR_ONLY = mcl.MCLParams(motion=False, sensor=True, landmarks=False)
 LBFGS = optax.lbfgs(linesearch=optax.scale_by_backtracking_linesearch(max_backtracking_steps=15))
 
 
+@jax.jit
+def _ekf_log_sd_gradient(key, state, params, data, log_sensor_sd, log_pose_sd, sensor_mask, pose_mask):
+    """``∇`` of the EKF's total log-likelihood ``T · exact(key, params)`` in the log noise levels: the
+    entries of the sensor's ``sd`` and the motion's ``pose_sd`` where the masks are True are
+    ``exp(log_sd)``, the others are ``params``' own. One compiled program serves the observed information
+    of both exact fits (the sensor's and the motion's noise), whose data share their shapes."""
+    num_steps = jax.tree_util.tree_leaves(data)[0].shape[0]
+    exact = calibration.log_likelihood_objective(ekf.kernel, ekf.EKFConfig(), state, data)
+
+    def total(log_sensor_sd, log_pose_sd):
+        sensor_sd = jnp.where(sensor_mask, jnp.exp(log_sensor_sd), params.sensor.sd)
+        pose_sd = jnp.where(pose_mask, jnp.exp(log_pose_sd), params.motion.pose_sd)
+        moved = params._replace(sensor=lm.RangeBearingNoise(sensor_sd), motion=params.motion._replace(pose_sd=pose_sd))
+        return exact(key, moved) * num_steps
+
+    return jax.grad(total, argnums=(0, 1))(log_sensor_sd, log_pose_sd)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _sensor_sd_gradient(config, key, state, params, data):
+    """``∇_σ objective(key, params with the sensor's sd σ)`` of MCL's log-likelihood objective: one compiled
+    program per config, shared by the tests that take this gradient."""
+    objective = calibration.log_likelihood_objective(mcl.kernel, config, state, data)
+    return jax.grad(lambda sd: objective(key, params._replace(sensor=lm.RangeBearingNoise(sd))))(params.sensor.sd)
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _forward_runs(keys, state, config, params, sim):
+    """:func:`calibration_run` of each key: one compiled program per config."""
+    return jax.vmap(lambda k: calibration_run(k, state, config, params, sim))(keys)
+
+
 @pytest.fixture(scope="module")
 def small():
     config, params, sim = _world(128, 30)
@@ -69,8 +101,7 @@ def test_score_estimator_leaves_the_forward_pass_unchanged(small, threshold, get
     keys = jax.random.split(getkey(), 3)
     runs = {}
     for g in ("score", "naive"):
-        cfg = mcl.MCLConfig(128, ess_threshold=threshold, gradient=g)
-        runs[g] = jax.vmap(lambda k, cfg=cfg: calibration_run(k, state, cfg, params, sim))(keys)
+        runs[g] = _forward_runs(keys, state, mcl.MCLConfig(128, ess_threshold=threshold, gradient=g), params, sim)
     for a, b in zip(jax.tree_util.tree_leaves(runs["score"]), jax.tree_util.tree_leaves(runs["naive"]), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     if threshold < 1.0:
@@ -89,27 +120,29 @@ def test_score_and_naive_gradients_differ(small, getkey):
     key = getkey()
     grads = {}
     for g in ("score", "naive"):
-        cfg = mcl.MCLConfig(128, gradient=g)
-        objective = calibration.log_likelihood_objective(mcl.kernel, cfg, state, (sim.controls, sim.observations))
-        grads[g] = jax.grad(lambda sd, o=objective: o(key, params._replace(sensor=lm.RangeBearingNoise(sd))))(
-            params.sensor.sd
+        grads[g] = _sensor_sd_gradient(
+            mcl.MCLConfig(128, gradient=g), key, state, params, (sim.controls, sim.observations)
         )
     assert not np.allclose(np.asarray(grads["score"]), np.asarray(grads["naive"]))
 
 
-@pytest.mark.parametrize("alpha", [1.0, 0.5, 0.0])
-def test_soft_gradient_is_finite_with_zero_weight_particles(alpha, getkey):
+def _soft_total(theta, key, alpha):
     from jaxnav.core import resampling
 
-    def total(theta, key):
-        alive = jnp.asarray([True, True, False, True, False, True])
-        lw = jnp.where(alive, jnp.asarray([0.1, 0.5, 0.0, 0.2, 0.0, -0.3]) * theta, -jnp.inf)
-        lw = lw - jax.nn.logsumexp(lw)
-        res = resampling.conditional_resample(key, jnp.arange(6.0)[:, None], lw, gradient="soft", soft_mixing=alpha)
-        return jax.nn.logsumexp(res.log_weights + jnp.arange(6.0) * theta)
+    alive = jnp.asarray([True, True, False, True, False, True])
+    lw = jnp.where(alive, jnp.asarray([0.1, 0.5, 0.0, 0.2, 0.0, -0.3]) * theta, -jnp.inf)
+    lw = lw - jax.nn.logsumexp(lw)
+    res = resampling.conditional_resample(key, jnp.arange(6.0)[:, None], lw, gradient="soft", soft_mixing=alpha)
+    return jax.nn.logsumexp(res.log_weights + jnp.arange(6.0) * theta)
 
+
+_soft_gradients = jax.jit(jax.vmap(jax.grad(_soft_total), (None, 0, None)), static_argnums=2)
+
+
+@pytest.mark.parametrize("alpha", [1.0, 0.5, 0.0])
+def test_soft_gradient_is_finite_with_zero_weight_particles(alpha, getkey):
     keys = jax.random.split(getkey(), 16)
-    grads = jax.vmap(jax.grad(total), (None, 0))(1.0, keys)
+    grads = _soft_gradients(1.0, keys, alpha)
     assert np.all(np.isfinite(np.asarray(grads)))
 
 
@@ -123,6 +156,8 @@ def test_soft_step_that_keeps_no_live_particle_is_flagged_degenerate(getkey):
     norm = weights.normalize(jnp.where(jnp.arange(n) == 5, 0.0, -jnp.inf))
     particles = jnp.arange(float(n))[:, None]
 
+    @functools.partial(jax.jit, static_argnums=1)
+    @functools.partial(jax.vmap, in_axes=(0, None))
     def flags(key, gradient):
         res, info = particle_filter.finish_step(
             key, particles, norm, scheme="multinomial", gradient=gradient, soft_mixing=0.0
@@ -130,13 +165,13 @@ def test_soft_step_that_keeps_no_live_particle_is_flagged_degenerate(getkey):
         return info.degenerate, jnp.any(res.ancestors == 5), res.log_weights
 
     keys = jax.random.split(getkey(), 200)
-    degenerate, kept, carried = jax.vmap(lambda k: flags(k, "soft"))(keys)
+    degenerate, kept, carried = flags(keys, "soft")
     degenerate, kept = np.asarray(degenerate), np.asarray(kept)
     np.testing.assert_array_equal(degenerate, ~kept)
     assert 0.2 < degenerate.mean() < 0.55, degenerate.mean()
     np.testing.assert_allclose(np.asarray(carried)[degenerate], -math.log(n), rtol=1e-6)
     for gradient in ("score", "naive"):
-        assert not np.any(np.asarray(jax.vmap(lambda k, g=gradient: flags(k, g)[0])(keys)))
+        assert not np.any(np.asarray(flags(keys, gradient)[0]))
 
 
 def test_soft_resampling_carries_importance_weights(small, getkey):
@@ -160,8 +195,7 @@ def test_soft_resampling_carries_importance_weights(small, getkey):
 def test_every_estimator_gives_a_finite_gradient(small, gradient, getkey):
     config, params, sim, state = small
     cfg = mcl.MCLConfig(128, gradient=gradient)
-    objective = calibration.log_likelihood_objective(mcl.kernel, cfg, state, (sim.controls, sim.observations))
-    g = jax.grad(lambda sd: objective(getkey(), params._replace(sensor=lm.RangeBearingNoise(sd))))(params.sensor.sd)
+    g = _sensor_sd_gradient(cfg, getkey(), state, params, (sim.controls, sim.observations))
     assert np.all(np.isfinite(np.asarray(g))) and np.any(np.asarray(g) != 0)
 
 
@@ -200,16 +234,20 @@ def test_fit_recovers_the_sensor_noise_from_three_times_too_large(getkey):
     exact = calibration.log_likelihood_objective(ekf.kernel, ekf_config, ekf_state, data)
     best = calibration.fit(exact, getkey(), wrong, trainable=SENSOR_ONLY, steps=8, optimizer=LBFGS)
 
-    def total(log_sd):
-        return exact(getkey(), params._replace(sensor=lm.RangeBearingNoise(jnp.exp(log_sd)))) * num_steps
-
     ukf_config = ukf.UKFConfig()
     ukf_state = ukf.init(None, ukf_config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.05, 0.05, 0.02]) ** 2))
     unscented = calibration.log_likelihood_objective(ukf.kernel, ukf_config, ukf_state, data)
     sigma_points = calibration.fit(unscented, getkey(), wrong, trainable=SENSOR_ONLY, steps=8, optimizer=LBFGS)
 
+    key = getkey()
+
+    def grad(log_sd):  # of total(log_sd) = T · exact(key, params with the sensor's sd exp(log_sd))
+        no_pose = jnp.zeros(3, log_sd.dtype)
+        masks = (jnp.ones(2, bool), jnp.zeros(3, bool))
+        return _ekf_log_sd_gradient(key, ekf_state, params, data, log_sd, no_pose, *masks)[0]
+
     log_ekf = jnp.log(best.params.sensor.sd)
-    information = _observed_information(total, log_ekf)
+    information = _observed_information(grad, log_ekf)
     se = np.sqrt(np.diag(np.linalg.inv(information)))
     assert np.all(se < 0.05), se  # the data do pin the noise down
     log_true = np.log(TRUE_SD)
@@ -247,16 +285,19 @@ def test_exact_fit_recovers_the_motion_noise_from_three_times_too_large(getkey):
     )
     ekf_config = ekf.EKFConfig()
     state = ekf.init(None, ekf_config, params, jnp.asarray(START), jnp.diag(jnp.asarray([0.05, 0.05, 0.02]) ** 2))
-    exact = calibration.log_likelihood_objective(ekf.kernel, ekf_config, state, (sim.controls, sim.observations))
+    data = (sim.controls, sim.observations)
+    exact = calibration.log_likelihood_objective(ekf.kernel, ekf_config, state, data)
     best = calibration.fit(exact, getkey(), wrong, trainable=pose_sd_only, steps=10, optimizer=LBFGS)
 
     key = getkey()
 
-    def total(log_sd):
-        return exact(key, params._replace(motion=params.motion._replace(pose_sd=jnp.exp(log_sd)))) * num_steps
+    def grad(log_sd):  # of total(log_sd) = T · exact(key, params with the motion's pose_sd exp(log_sd))
+        no_sensor = jnp.zeros(2, log_sd.dtype)
+        masks = (jnp.zeros(2, bool), jnp.ones(3, bool))
+        return _ekf_log_sd_gradient(key, state, params, data, no_sensor, log_sd, *masks)[1]
 
     log_fit = np.log(np.asarray(best.params.motion.pose_sd))
-    information = _observed_information(total, log_fit)
+    information = _observed_information(grad, log_fit)
     se = np.sqrt(np.diag(np.linalg.inv(information)))
     assert np.all(se < 0.15), se  # the data do pin the motion noise down
     assert np.all(np.abs(log_fit - np.log(TRUE_POSE_SD)) < 3 * se), (best.params.motion.pose_sd, se)
@@ -281,6 +322,27 @@ def test_fit_is_deterministic_and_compiles_once(small, getkey):
     assert first.losses.shape == (4,) and first.trace.sensor.sd.shape == (5, 2)
 
 
+def test_a_line_search_fit_compiles_its_step_once(small):
+    """L-BFGS's state starts with a weak-typed line-search counter that its first update returns strongly
+    typed; ``fit`` fixes the types up front, so every step reuses the first step's program (the objective
+    is traced as often in a 3-step fit as in a 1-step one)."""
+    _, params, sim, _ = small
+    state = ekf.init(None, ekf.EKFConfig(), params, jnp.asarray(START), jnp.diag(jnp.asarray([0.05, 0.05, 0.02]) ** 2))
+    inner = calibration.log_likelihood_objective(ekf.kernel, ekf.EKFConfig(), state, (sim.controls, sim.observations))
+    traces = []
+
+    def objective(key, p):
+        traces.append(1)  # once per trace of the objective (the gradient's and the line search's)
+        return inner(key, p)
+
+    counts = []
+    for steps in (1, 3):
+        traces.clear()
+        calibration.fit(objective, jax.random.PRNGKey(0), params, trainable=SENSOR_ONLY, steps=steps, optimizer=LBFGS)
+        counts.append(len(traces))
+    assert counts[0] > 0 and counts[1] == counts[0], counts
+
+
 def test_fit_trains_the_chosen_entries_only(small, getkey):
     config, params, sim, state = small
     objective = calibration.log_likelihood_objective(
@@ -298,9 +360,8 @@ def test_fit_trains_the_chosen_entries_only(small, getkey):
     np.testing.assert_array_equal(np.asarray(out.params.landmarks), np.asarray(params.landmarks))
 
 
-def test_fit_accepts_an_optax_optimizer_and_a_minibatch(getkey):
-    config, params, sim = _world(64, 12)
-    state = mcl.init(jax.random.PRNGKey(1), config, params, jnp.asarray(START))
+def test_fit_accepts_an_optax_optimizer_and_a_minibatch(small, getkey):
+    config, params, sim, state = small  # the module's world: no simulation of its own to compile
     stack = lambda tree: jax.tree_util.tree_map(lambda x: jnp.stack([x, x, x]), tree)  # noqa: E731
     objective = calibration.log_likelihood_objective(
         mcl.kernel, config, stack(state), stack((sim.controls, sim.observations)), batched=True, batch_size=2
@@ -381,5 +442,7 @@ def test_motion_noise_gradient_is_finite_when_the_robot_stands_still(model, getk
         control, noise = jnp.zeros(6), motion.OdometryNoise(jnp.full(4, 0.01), jnp.full(3, 0.01))
     sample = motion.get_motion_model(model).sample
     key = getkey()
-    grad = jax.grad(lambda a: jnp.sum(sample(key, poses, control, noise._replace(alphas=a)) ** 2))(noise.alphas)
+    grad = jax.jit(jax.grad(lambda a: jnp.sum(sample(key, poses, control, noise._replace(alphas=a)) ** 2)))(
+        noise.alphas
+    )
     assert np.all(np.isfinite(np.asarray(grad)))

@@ -9,6 +9,7 @@ so all three must give the exact Kalman posterior; float64 agreement to 1e-9
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -62,6 +63,16 @@ def _filterpy_run(zs):
     return np.array(means), np.array(covs), np.array(lls)
 
 
+@functools.cache
+def _jax_run_cached(seed: int, steps: int, kind: str, dtype):
+    """``_jax_run`` on ``_simulate(seed, steps)``, once per argument list (numpy outputs, read only)."""
+    with jax.enable_x64(dtype == jnp.float64):
+        out = _jax_run(_simulate(seed, steps), kind, dtype)
+    for x in out:
+        x.flags.writeable = False
+    return out
+
+
 def _jax_run(zs, kind: str, dtype):
     a, q, c, r = (jnp.asarray(m) for m in _model(dtype))
     weights = kalman.sigma_weights(4, alpha=0.5, beta=2.0, kappa=0.0, dtype=dtype)
@@ -90,8 +101,7 @@ def _jax_run(zs, kind: str, dtype):
 def test_linear_gaussian_matches_filterpy_float64(kind):
     zs = _simulate(0, 60)
     ref_m, ref_p, ref_ll = _filterpy_run(zs)
-    with jax.enable_x64(True):
-        m, p, ll = _jax_run(zs, kind, jnp.float64)
+    m, p, ll = _jax_run_cached(0, 60, kind, jnp.float64)
     np.testing.assert_allclose(m, ref_m, rtol=1e-9, atol=1e-11)
     np.testing.assert_allclose(p, ref_p, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(ll, ref_ll, rtol=1e-9, atol=1e-9)
@@ -99,10 +109,8 @@ def test_linear_gaussian_matches_filterpy_float64(kind):
 
 @pytest.mark.parametrize("kind", ["ekf", "ukf"])
 def test_linear_gaussian_float32_equals_exact_kf(kind):
-    zs = _simulate(1, 200)
-    with jax.enable_x64(True):
-        ref_m, ref_p, ref_ll = _jax_run(zs, "kf", jnp.float64)
-    m, p, ll = _jax_run(zs, kind, jnp.float32)
+    ref_m, ref_p, ref_ll = _jax_run_cached(1, 200, "kf", jnp.float64)
+    m, p, ll = _jax_run_cached(1, 200, kind, jnp.float32)
     assert m.dtype == np.float32
     np.testing.assert_allclose(m, ref_m, rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(p, ref_p, rtol=1e-3, atol=1e-6)
@@ -118,19 +126,24 @@ def test_sequential_update_equals_joint_update():
         cov = jnp.asarray(np.diag([1.0, 2.0, 0.5, 0.5]) + 0.1)
         _, _, c, r = (jnp.asarray(m) for m in _model())
         z = jnp.asarray([0.7, -1.1])
-        joint = kalman.ekf_update(mean, cov, z, lambda x: c @ x, r)
 
         def h(x, aux):
             row, _ = aux
             return (row @ x)[None]
 
-        rows = (c, jnp.diag(r))
-        g = kalman.Gaussian(mean, cov)
-        for k in range(2):
-            res = kalman.ekf_update(
-                g.mean, g.cov, z[k : k + 1], h, jnp.diag(r)[k][None, None], (rows[0][k], rows[1][k])
-            )
-            g = kalman.Gaussian(res.mean, res.cov)
+        @jax.jit  # one program rather than one per eager operation
+        def both(mean, cov, z, c, r):
+            joint = kalman.ekf_update(mean, cov, z, lambda x: c @ x, r)
+            rows = (c, jnp.diag(r))
+            g = kalman.Gaussian(mean, cov)
+            for k in range(2):
+                res = kalman.ekf_update(
+                    g.mean, g.cov, z[k : k + 1], h, jnp.diag(r)[k][None, None], (rows[0][k], rows[1][k])
+                )
+                g = kalman.Gaussian(res.mean, res.cov)
+            return joint, g
+
+        joint, g = both(mean, cov, z, c, r)
         np.testing.assert_allclose(g.mean, joint.mean, rtol=1e-10)
         np.testing.assert_allclose(g.cov, joint.cov, rtol=1e-10, atol=1e-14)
 
@@ -149,11 +162,17 @@ def test_sequential_scan_equals_loop_and_skips_invalid():
 
         zs = jnp.asarray([[3.1, -0.25], [jnp.nan, jnp.nan], [4.0, 2.9]])
         valid = jnp.asarray([True, False, True])
-        seq = kalman.ekf_update_sequential(mean, cov, zs, h, r, landmarks, valid=valid, obs_angle_dims=(1,))
-        g = kalman.Gaussian(mean, cov)
-        for k in (0, 2):
-            res = kalman.ekf_update(g.mean, g.cov, zs[k], h, r, landmarks[k], obs_angle_dims=(1,))
-            g = kalman.Gaussian(res.mean, res.cov)
+
+        @jax.jit  # one program rather than one per eager operation; both paths are in it
+        def both(mean, cov, zs, r, landmarks, valid):
+            seq = kalman.ekf_update_sequential(mean, cov, zs, h, r, landmarks, valid=valid, obs_angle_dims=(1,))
+            g = kalman.Gaussian(mean, cov)
+            for k in (0, 2):
+                res = kalman.ekf_update(g.mean, g.cov, zs[k], h, r, landmarks[k], obs_angle_dims=(1,))
+                g = kalman.Gaussian(res.mean, res.cov)
+            return seq, g
+
+        seq, g = both(mean, cov, zs, r, landmarks, valid)
         np.testing.assert_allclose(seq.mean, g.mean, rtol=1e-12)
         np.testing.assert_allclose(seq.cov, g.cov, rtol=1e-12)
         assert np.all(np.isfinite(seq.mean)) and seq.accepted.tolist() == [True, False, True]
@@ -172,9 +191,13 @@ def test_bearing_residual_is_wrapped():
         return jnp.stack([jnp.linalg.norm(d), jnp.arctan2(d[1], d[0]) - x[2]])
 
     z = jnp.asarray([5.0, math.pi - 0.01])
-    res = kalman.ekf_update(mean, cov, z, h, r, m, obs_angle_dims=(1,))
+    res, unwrapped = jax.jit(  # one program rather than one per eager operation
+        lambda mean, cov, z, r, m: (
+            kalman.ekf_update(mean, cov, z, h, r, m, obs_angle_dims=(1,)),
+            kalman.ekf_update(mean, cov, z, h, r, m),
+        )
+    )(mean, cov, z, r, m)
     assert float(res.nis) < 1.0
-    unwrapped = kalman.ekf_update(mean, cov, z, h, r, m)
     assert float(unwrapped.nis) > 1000.0  # negative control: without wrapping the innovation is ~2π
 
 
@@ -182,8 +205,11 @@ def test_gate_rejects_outlier_and_reports_it():
     _, _, c, r = (jnp.asarray(m, jnp.float32) for m in _model(np.float32))
     mean, cov = jnp.zeros(4), jnp.eye(4)
     gate = kalman.chi2_gate(0.99, 2)
-    good = kalman.ekf_update(mean, cov, jnp.asarray([0.5, -0.5]), lambda x: c @ x, r, gate=gate)
-    bad = kalman.ekf_update(mean, cov, jnp.asarray([50.0, 0.0]), lambda x: c @ x, r, gate=gate)
+    update = jax.jit(  # one program (for both calls) rather than one per eager operation
+        lambda mean, cov, z, c, r: kalman.ekf_update(mean, cov, z, lambda x: c @ x, r, gate=gate)
+    )
+    good = update(mean, cov, jnp.asarray([0.5, -0.5]), c, r)
+    bad = update(mean, cov, jnp.asarray([50.0, 0.0]), c, r)
     assert bool(good.accepted) and not bool(bad.accepted)
     assert float(bad.nis) > gate
     np.testing.assert_array_equal(bad.mean, mean)
@@ -205,12 +231,15 @@ def test_ukf_flags_failed_cholesky_without_nan():
     """An indefinite covariance cannot be factorised: the UKF flags it and returns finite numbers."""
     weights = kalman.sigma_weights(2)
     cov = jnp.asarray([[1.0, 2.0], [2.0, 1.0]])  # eigenvalues 3 and −1
-    res = kalman.ukf_update(jnp.zeros(2), cov, jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights)
+    update = jax.jit(  # one program (for both calls) rather than one per eager operation
+        lambda cov: kalman.ukf_update(
+            jnp.zeros(2), cov, jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights
+        )
+    )
+    res = update(cov)
     assert bool(res.cholesky_failed)
     assert np.all(np.isfinite(res.mean)) and np.all(np.isfinite(res.cov))
-    ok = kalman.ukf_update(
-        jnp.zeros(2), jnp.eye(2), jnp.asarray([0.3]), lambda x: x[:1], jnp.eye(1) * 0.1, weights=weights
-    )
+    ok = update(jnp.eye(2))
     assert not bool(ok.cholesky_failed)
 
 
@@ -219,7 +248,9 @@ def test_ukf_heading_mean_across_pi():
     weights = kalman.sigma_weights(3)
     mean = jnp.asarray([0.0, 0.0, math.pi - 1e-3])
     cov = jnp.diag(jnp.asarray([0.01, 0.01, 0.04]))
-    prior, failed = kalman.ukf_predict(mean, cov, lambda x: x, jnp.zeros((3, 3)), weights, state_angle_dims=(2,))
+    prior, failed = jax.jit(  # one program rather than one per eager operation
+        lambda mean, cov: kalman.ukf_predict(mean, cov, lambda x: x, jnp.zeros((3, 3)), weights, state_angle_dims=(2,))
+    )(mean, cov)
     assert not bool(failed)
     assert abs(abs(float(prior.mean[2])) - math.pi) < 2e-3
     np.testing.assert_allclose(prior.cov, cov, rtol=1e-4, atol=1e-7)
@@ -293,6 +324,7 @@ def _kf_batch(m0, p0, zs, model, dtype, update=None):
     return tuple(np.asarray(x) for x in out)
 
 
+@functools.cache  # the NumPy reference is slow; the outputs are read only
 def _long_run_inputs(b: int, steps: int, p0_scale: float = 1.0, r_scale: float = 1.0, seed: int = 5):
     """``b`` sequences of the W4 model with R scaled by ``r_scale``; P0 differs per sequence."""
     a, q, c, r = _model()
@@ -308,6 +340,8 @@ def _long_run_inputs(b: int, steps: int, p0_scale: float = 1.0, r_scale: float =
         zs[:, t] = x @ c.T + rng.standard_normal((b, 2)) @ lr.T
     refs = [_numpy_joseph_filter(m0[i], p0[i], zs[i], a, q, c, r) for i in range(b)]
     ref = tuple(np.stack([x[k] for x in refs]) for k in range(3))
+    for x in (m0, p0, zs, a, q, c, r, *ref):
+        x.flags.writeable = False
     return (m0, p0, zs), (a, q, c, r), ref
 
 
@@ -378,16 +412,22 @@ def test_kalman_scalar_form_equals_ekf_update(n, m, monkeypatch):
     a, p, q, c, r = rng.standard_normal((n, n)), spd(n), spd(n), rng.standard_normal((m, n)), spd(m)
     mean, z = rng.standard_normal(n), rng.standard_normal(m)
     with jax.enable_x64(True):
-        prior = kalman.kalman_predict(mean, p, a, q)
+        # One program per test (created after the monkeypatch, so it traces the scalar form) rather than
+        # one per eager operation; ``valid`` is a traced argument, as in a jitted kalman_update call.
+        @jax.jit
+        def compute(mean, p, a, q, z_, c_, r_, invalid):
+            prior = kalman.kalman_predict(mean, p, a, q)
+            got = kalman.kalman_update(prior.mean, prior.cov, z_, c_, r_)
+            ref = kalman.ekf_update(prior.mean, prior.cov, z_, lambda x: c_ @ x, r_)
+            skipped = kalman.kalman_update(prior.mean, prior.cov, jnp.full(m, jnp.nan), c_, r_, invalid)
+            return prior, got, ref, skipped
+
+        prior, got, ref, skipped = compute(mean, p, a, q, z, c, r, jnp.asarray(False))
         np.testing.assert_allclose(prior.mean, a @ mean, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(prior.cov, a @ p @ a.T + q, rtol=1e-12, atol=1e-12)
-        c_, r_, z_ = jnp.asarray(c), jnp.asarray(r), jnp.asarray(z)
-        got = jax.jit(kalman.kalman_update)(prior.mean, prior.cov, z_, c_, r_)
-        ref = kalman.ekf_update(prior.mean, prior.cov, z_, lambda x: c_ @ x, r_)
         for name in ("mean", "cov", "nis", "log_likelihood"):
             np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-12, atol=1e-12, err_msg=name)
         assert bool(got.accepted) and not bool(got.cholesky_failed)
-        skipped = jax.jit(kalman.kalman_update)(prior.mean, prior.cov, jnp.full(m, jnp.nan), c_, r_, False)
         np.testing.assert_array_equal(skipped.mean, prior.mean)
         np.testing.assert_array_equal(skipped.cov, prior.cov)
         assert float(skipped.log_likelihood) == 0.0 and float(skipped.nis) == 0.0 and not bool(skipped.accepted)
@@ -401,7 +441,11 @@ def test_kalman_update_singular_innovation_stays_finite(dtype):
         n, m = 4, 2
         mean = jnp.arange(n, dtype=dtype)
         c = jnp.eye(m, n, dtype=dtype)
-        res = kalman.kalman_update(mean, jnp.zeros((n, n), dtype), jnp.ones(m, dtype), c, jnp.zeros((m, m), dtype))
+        res = jax.jit(  # one program rather than one per eager operation
+            lambda mean, c: kalman.kalman_update(
+                mean, jnp.zeros((n, n), dtype), jnp.ones(m, dtype), c, jnp.zeros((m, m), dtype)
+            )
+        )(mean, c)
         assert res.mean.dtype == dtype
         for x in (res.mean, res.cov, res.nis, res.log_likelihood):
             assert np.all(np.isfinite(np.asarray(x)))

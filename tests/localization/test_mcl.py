@@ -1,5 +1,6 @@
 """Monte Carlo localization ([A] Alg. 3): convergence, jit/vmap, tracing, determinism, bad input."""
 
+import functools
 import math
 
 import jax
@@ -16,8 +17,11 @@ from jaxnav.sim import landmark_world as world
 from jaxnav.sim import trajectories
 
 START = jnp.asarray([5.0, 1.5, 0.0])
+# Short runs of the default config share one length: one simulation and one compiled ``run``.
+SHORT = 8
 
 
+@functools.cache  # equal settings share the simulation (its arrays are immutable)
 def _setting(n=300, steps=30, **config_kw):
     config, params = demo_setting(n)
     if config_kw:
@@ -37,18 +41,18 @@ def test_demo_converges_below_20_cm_after_50_steps(seed):
 
 
 def test_init_takes_a_list_pose_like_an_array():
-    config, params, _, _ = _setting(steps=2)
+    config, params, _, _ = _setting(steps=SHORT)
     a = mcl.init(jax.random.PRNGKey(0), config, params, [5.0, 1.5, 0.0], [0.1, 0.1, 0.05])
     b = mcl.init(jax.random.PRNGKey(0), config, params, jnp.asarray([5.0, 1.5, 0.0]), jnp.asarray([0.1, 0.1, 0.05]))
     np.testing.assert_array_equal(a.particles, b.particles)
 
 
 def test_run_equals_a_loop_of_steps_with_fold_in_keys():
-    config, params, sim, state = _setting(steps=8)
+    config, params, sim, state = _setting(steps=SHORT)
     key = jax.random.PRNGKey(3)
     final, trace = mcl.run(key, state, config, params, sim.controls, sim.observations)
     s = state
-    for t in range(8):
+    for t in range(SHORT):
         obs_t = jax.tree_util.tree_map(lambda x: x[t], sim.observations)
         s, info = mcl.step(jax.random.fold_in(key, t), s, config, params, sim.controls[t], obs_t)
         np.testing.assert_allclose(info.estimate, trace.estimate[t], atol=1e-5)
@@ -96,13 +100,13 @@ def test_no_retrace_between_calls_with_the_same_shapes():
 
 
 def test_masked_and_out_of_map_observations_are_ignored_and_counted():
-    config, params, sim, state = _setting(steps=5)
+    config, params, sim, state = _setting(steps=SHORT)  # its unpadded run is test_run_equals_a_loop's program
     obs = sim.observations
     m = params.landmarks.shape[0]
     # Append two extra slots per step: one masked with NaN data, one with an id beyond the map.
-    extra_ids = jnp.tile(jnp.asarray([[0, m + 3]], jnp.int32), (5, 1))
-    extra_z = jnp.tile(jnp.asarray([[[jnp.nan, jnp.nan], [1.0, 0.0]]]), (5, 1, 1))
-    extra_mask = jnp.tile(jnp.asarray([[False, True]]), (5, 1))
+    extra_ids = jnp.tile(jnp.asarray([[0, m + 3]], jnp.int32), (SHORT, 1))
+    extra_z = jnp.tile(jnp.asarray([[[jnp.nan, jnp.nan], [1.0, 0.0]]]), (SHORT, 1, 1))
+    extra_mask = jnp.tile(jnp.asarray([[False, True]]), (SHORT, 1))
     padded = lm.RangeBearingObs(
         jnp.concatenate([obs.ids, extra_ids], 1),
         jnp.concatenate([obs.z, extra_z], 1),
@@ -112,8 +116,8 @@ def test_masked_and_out_of_map_observations_are_ignored_and_counted():
     _, ref = mcl.run(key, state, config, params, sim.controls, obs)
     _, got = mcl.run(key, state, config, params, sim.controls, padded)
     np.testing.assert_allclose(got.estimate, ref.estimate, atol=1e-5)
-    np.testing.assert_array_equal(got.num_ignored, np.ones(5))
-    np.testing.assert_array_equal(ref.num_ignored, np.zeros(5))
+    np.testing.assert_array_equal(got.num_ignored, np.ones(SHORT))
+    np.testing.assert_array_equal(ref.num_ignored, np.zeros(SHORT))
 
 
 def test_no_observations_leaves_weights_alone_and_filter_keeps_running():
@@ -222,7 +226,7 @@ def test_bad_params_and_inputs_are_refused_with_the_argument_named():
 
 def test_masked_observation_inside_jit_keeps_running():
     """Inside the user's own jit the host checks are skipped; masks still work."""
-    config, params, sim, state = _setting(steps=4)
+    config, params, sim, state = _setting(steps=SHORT)
     obs = sim.observations._replace(mask=sim.observations.mask.at[:, :4].set(False))
     f = jax.jit(lambda k, o: mcl.run(k, state, config, params, sim.controls, o)[1].estimate)
     est = f(jax.random.PRNGKey(0), obs)

@@ -6,6 +6,7 @@ Bounds are stated with the figures measured on these fixed seeds (jaxnav
 
 from __future__ import annotations
 
+import functools
 import subprocess
 import sys
 
@@ -20,6 +21,18 @@ from jaxnav.sim import tag_carpet as tc
 from jaxnav.slam import pf_slam
 
 SMALL = dict(density=16.0, carpet=(2.0, 2.0), robot_particles=200, tag_particles=50)
+
+# One compiled program per (method, setting) and per setting, not one per operation: ``run_once`` and
+# ``make_world`` are pure functions of the key (:mod:`jaxnav.experiments.hf_slam`), jitted here with the
+# method and the (hashable) setting static.
+_make_world = jax.jit(xp.make_world, static_argnums=1)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _run_once_and_dead_reckoning(key, method, setting):
+    """``xp.run_once(key, method, setting)`` and the run's dead reckoning, in one program."""
+    errors, world, result = xp.run_once(key, method, setting)
+    return errors, world, result, xp.dead_reckoning(world.run)
 
 
 def _robot_and_odometry_errors(method, setting, key, runs):
@@ -49,13 +62,13 @@ def test_robot_error_recovers_after_kidnapping():
     motion update; the recovery fires, and 5 s later the robot error is back to the level before.
     Measured (seed 0): 46 mm over the 5 s before, 26 mm over 5–15 s after; odometry stays 1.6 m off."""
     setting = xp.HFSetting(density=16.0, trajectory="kidnapping", laps=1, robot_particles=300, tag_particles=50)
-    _, world, result = xp.run_once(jax.random.PRNGKey(0), "pf_slam", setting)
+    _, world, result, dead = _run_once_and_dead_reckoning(jax.random.PRNGKey(0), "pf_slam", setting)
     err = 1000 * np.linalg.norm(np.asarray(result.estimates)[:, :2] - np.asarray(world.run.true_poses)[:, :2], axis=1)
     k = int(np.argmax(np.asarray(world.run.kidnapped)))
     assert np.asarray(result.lost)[k : k + 20].any() and not np.asarray(result.lost)[:k].any()
     before, after = err[k - 50 : k].mean(), err[k + 50 : k + 150].mean()
     assert after < 1.5 * before + 10.0 and after < 60.0, (before, after)
-    dead = np.asarray(xp.dead_reckoning(world.run))
+    dead = np.asarray(dead)
     assert np.linalg.norm(dead[k + 100, :2] - np.asarray(world.run.true_poses)[k + 100, :2]) > 1.0
 
 
@@ -67,15 +80,19 @@ def test_tag_error_falls_with_the_number_of_detections():
         density=16.0, carpet=(1.5, 1.5), trajectory="random", random_steps=1500, robot_particles=200, tag_particles=100
     )
     buckets = {"1": [], "2-5": [], "6-15": [], "16+": []}
-    for seed in range(3):
-        world = xp.make_world(jax.random.PRNGKey(seed), setting)
+
+    @jax.jit
+    def world_and_trace(world_key, run_key):  # one program for the three seeds
+        world = xp.make_world(world_key, setting)
         config = pf_slam.PFSLAMConfig(200, 100, world.carpet.layout.num_tags)
         params = pf_slam.PFSLAMParams(setting.motion(), setting.sensor())
         state = pf_slam.init(jax.random.PRNGKey(9), config, params, world.run.start_pose)
-        _, trace = pf_slam.run(
-            jax.random.PRNGKey(10 + seed), state, config, params, world.run.odometry, world.run.detections
-        )
-        tags = np.asarray(tc.tag_positions(world.carpet))
+        _, trace = pf_slam.run(run_key, state, config, params, world.run.odometry, world.run.detections)
+        return tc.tag_positions(world.carpet), trace
+
+    for seed in range(3):
+        tags, trace = world_and_trace(jax.random.PRNGKey(seed), jax.random.PRNGKey(10 + seed))
+        tags = np.asarray(tags)
         ids, counts, est = (np.asarray(a) for a in (trace.slot_ids, trace.slot_counts, trace.slot_estimates))
         valid = ids >= 0
         err = 1000 * np.linalg.norm(est[valid] - tags[ids[valid]], axis=1)
@@ -95,7 +112,7 @@ def test_fastslam_runs_on_the_hf_sensor_with_the_same_interface():
     rectangle (two laps, seed 1) its errors are a few centimetres (measured robot 14 mm, tags 27 mm),
     far below the pitch (250 mm)."""
     setting = xp.HFSetting(**SMALL, rectangle=(0.5, 0.5, 1.0, 1.0), laps=2)
-    errors, world, result = xp.run_once(jax.random.PRNGKey(1), "fastslam", setting)
+    errors, world, result, _ = _run_once_and_dead_reckoning(jax.random.PRNGKey(1), "fastslam", setting)
     assert int(np.asarray(result.seen).sum()) >= 8
     assert float(errors.dt_mm) < 100.0 and float(errors.dr_mm) < 100.0
 
@@ -151,7 +168,7 @@ def test_run_with_a_donated_state_equals_run(method):
     from jaxnav.slam import fastslam, pf_slam, ps_slam
 
     setting = xp.HFSetting(**SMALL, rectangle=(0.5, 0.5, 1.0, 1.0), laps=1)
-    world = xp.make_world(jax.random.PRNGKey(3), setting)
+    world = _make_world(jax.random.PRNGKey(3), setting)
     sensor, motion, tags = setting.sensor(), setting.motion(), int(setting.layout.num_tags)
     obs = world.run.detections
     if method == "pf_slam":

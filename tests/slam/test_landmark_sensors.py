@@ -7,6 +7,7 @@ outputs are bitwise those of the filters before the sensor became a configuratio
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -33,6 +34,7 @@ STILL = jnp.asarray([0.0, 0.0, 0.1])  # (v, ω, Δt): no motion
 NO_MOTION = motion.VelocityNoise(jnp.zeros(6), jnp.zeros(3))
 
 
+@jax.jit  # one program for every run's dead reckoning (a scan of a fresh lambda per call traces anew)
 def _odometry(start, controls):
     model = motion.get_motion_model("velocity")
     return jax.lax.scan(lambda p, u: (model.mean(p, u),) * 2, start, controls)[1]
@@ -247,25 +249,33 @@ def test_an_unusable_range_inside_a_callers_jit_is_dropped_and_counted():
     assert np.isfinite(np.asarray(final.tags.particles)).all()
 
 
+@functools.partial(jax.jit, static_argnums=1)
+def _density_checks(noise, heavy):
+    """The quantities test_range_densities_are_normalised_and_differentiable checks, in one program."""
+    e = jnp.linspace(-12.0, 12.0, 100_001)
+    total = jnp.trapezoid(jnp.exp(ro.log_density(e, noise, heavy)), e)
+
+    def loss(p):
+        return jnp.sum(ro.log_density(jnp.asarray([0.05, -0.3, 1.2]) - p.bias, p, heavy))
+
+    grads = jax.grad(loss)(noise)
+    wide = noise._replace(dof=jnp.float32(1e8))
+    near = jnp.linspace(-1.0, 1.0, 101)
+    return total, grads, ro.log_density(near, wide, True), ro.log_density(near, wide, False)
+
+
 @pytest.mark.parametrize("heavy", [False, True])
 def test_range_densities_are_normalised_and_differentiable(heavy):
     """The residual density integrates to one (trapezoid on ±60σ, 10⁵ points); its log-likelihood has
     finite gradients in σ, the bias and ν (the parameters a calibration learns); Student-t with
     ν = 10⁸ is the Gaussian within ±5σ (to 2·10⁻⁵ in float32: its normaliser does not cancel)."""
     noise = ro.range_noise(0.2, bias=0.1, dof=2.5)
-    e = jnp.linspace(-12.0, 12.0, 100_001)
-    total = float(jnp.trapezoid(jnp.exp(ro.log_density(e, noise, heavy)), e))
+    total, grads, wide_t, wide_gauss = _density_checks(noise, heavy)
+    total = float(total)
     assert abs(total - 1.0) < (2e-3 if heavy else 1e-5), total  # t(2.5) puts ~1e-3 beyond ±60σ
-
-    def loss(p):
-        return jnp.sum(ro.log_density(jnp.asarray([0.05, -0.3, 1.2]) - p.bias, p, heavy))
-
-    grads = jax.grad(loss)(noise)
     assert all(np.isfinite(float(g)) for g in grads)
     assert (float(grads.dof) != 0.0) == heavy
-    wide = noise._replace(dof=jnp.float32(1e8))
-    near = jnp.linspace(-1.0, 1.0, 101)
-    np.testing.assert_allclose(ro.log_density(near, wide, True), ro.log_density(near, wide, False), atol=2e-5)
+    np.testing.assert_allclose(wide_t, wide_gauss, atol=2e-5)
 
 
 @pytest.mark.parametrize("sensor", [ro.RANGE_ONLY_SENSOR, ro.RANGE_ONLY_T_SENSOR])

@@ -6,6 +6,7 @@ the algorithm's lines, independently of jaxnav's implementation.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -50,6 +51,11 @@ def _det(pairs, k=4):
 
 def _pf(i=4, j=4, max_tags=8, **kw):
     return pf_slam.PFSLAMConfig(num_particles=i, num_tag_particles=j, max_tags=max_tags, **kw)
+
+
+# The tests share two PF-SLAM configurations (and so two compiled steps): the hand-computed cases'
+# I = J = 4, and I = J = 200 for the cases whose claim needs many robot or tag particles.
+WIDE = dict(i=200, j=200)
 
 
 def _state_with_tag(config, poses, tag_id, tag_particles):
@@ -105,7 +111,7 @@ def test_pf_slam_redetection_matches_hand_computed_algorithm_1():
 
 
 def test_new_tag_is_spread_over_the_detecting_footprint_and_does_not_weight_the_robot():
-    config = _pf(j=64)
+    config = _pf(**WIDE)
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     pose = np.array([2.0, -1.0, 0.7])
     state = pf_slam.init(jax.random.PRNGKey(1), config, params, pose)
@@ -135,7 +141,7 @@ def test_two_readers_detecting_one_tag_update_it_once_with_both_detections():
     """300 mm footprints overlap: readers 0 and 3 (18 cm apart) both see a new tag. The tag is
     written once, counted once, and its particles end in the intersection of the two footprints."""
     sensor = hf_rfid.reader_params(0.3, beta=1e-3)
-    config = _pf(j=200)
+    config = _pf(**WIDE)
     params = pf_slam.PFSLAMParams(NO_NOISE, sensor)
     pose = np.zeros(3)
     state = pf_slam.init(jax.random.PRNGKey(3), config, params, pose)
@@ -161,12 +167,13 @@ def test_two_readers_detecting_one_tag_update_it_once_with_both_detections():
 
 
 def test_ids_beyond_the_table_are_dropped_and_counted():
-    config = _pf(max_tags=4)
+    config = _pf()
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
     before = jax.tree_util.tree_map(np.asarray, state.tags)
+    first_beyond = config.max_tags  # the first ID past the table, then one far past it and a negative one
     new_state, info = pf_slam.step(
-        jax.random.PRNGKey(1), state, config, params, STILL, _det([(4, 0), (99, 1), (-1, 2)])
+        jax.random.PRNGKey(1), state, config, params, STILL, _det([(first_beyond, 0), (99, 1), (-1, 2)])
     )
     assert int(info.num_ignored) == 3 and int(info.num_new) == 0
     for a, b in zip(jax.tree_util.tree_leaves(new_state.tags), jax.tree_util.tree_leaves(before)):
@@ -202,7 +209,7 @@ def test_ps_slam_ring_holds_lineages_and_smoothed_estimate_is_the_ring_mean():
 def test_ps_slam_first_detection_matches_pf_slam_and_resampling_moves_histories():
     """A new tag: the ring holds the initial particles once and the estimate is their mean. Then a
     re-detection that rules out half the particles: the surviving lineages' histories move with them."""
-    config = _ps(j=4, lag=5)
+    config = _ps()  # L = 3: the two detections fill two ring slots, as with any L ≥ 2
     params = ps_slam.PSSLAMParams(NO_NOISE, SENSOR, jnp.asarray(0.0, jnp.float32))
     pose = np.array([0.0, 0.0, 0.0])
     state = ps_slam.init(jax.random.PRNGKey(0), config, params, pose)
@@ -226,7 +233,7 @@ def test_ps_slam_first_detection_matches_pf_slam_and_resampling_moves_histories(
 def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
     """Robot particles 1 m away from where the re-detected tags say it is: the step flags the
     robot as lost, redraws it so the detecting readers sit over the tags, and leaves the map alone."""
-    config = _pf(i=200, j=4)
+    config = _pf(**WIDE)
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     true_pose = np.array([3.0, 2.0, 0.0])
     tag_a = true_pose[:2] + OFFSETS[0]
@@ -237,7 +244,9 @@ def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
         t = state.tags
         for n, p in ((0, tag_a), (1, tag_b)):
             t = t._replace(
-                particles=t.particles.at[n].set(jnp.broadcast_to(jnp.asarray(p, jnp.float32), (4, 2))),
+                particles=t.particles.at[n].set(
+                    jnp.broadcast_to(jnp.asarray(p, jnp.float32), (config.num_tag_particles, 2))
+                ),
                 estimates=t.estimates.at[n].set(jnp.asarray(p, jnp.float32)),
                 counts=t.counts.at[n].set(3),
             )
@@ -251,7 +260,7 @@ def test_kidnapped_robot_is_redrawn_around_the_detected_tags():
     assert abs(float(info.estimate[2])) < 0.3  # heading drawn uniformly, fixed by the two tags
     np.testing.assert_array_equal(np.asarray(new_state.tags.estimates), before)
     # Negative control: without recovery the particles stay a metre away.
-    config_off = _pf(i=200, j=4, recovery=False)
+    config_off = _pf(**WIDE, recovery=False)
     _, info_off = pf_slam.step(
         jax.random.PRNGKey(1), kidnapped_state(config_off), config_off, params, STILL, _det([(0, 0), (1, 7)])
     )
@@ -317,7 +326,7 @@ def test_params_are_checked_once_per_value_and_numpy_params_changed_in_place_aga
     """An online loop passes the same params at every step: they are validated once per value
     (:mod:`jaxnav.core.filter`), never by object identity, so a NumPy leaf changed in place
     after a valid call is checked again, and PS-SLAM refuses PF-SLAM's params it has never seen."""
-    config = _pf(max_tags=10)
+    config = _pf()
     params = pf_slam.PFSLAMParams(NO_NOISE, SENSOR)
     state = pf_slam.init(jax.random.PRNGKey(0), config, params, np.zeros(3))
     state, _ = pf_slam.step(jax.random.PRNGKey(1), state, config, params, STILL, _det([(1, 0)]))
@@ -330,7 +339,7 @@ def test_params_are_checked_once_per_value_and_numpy_params_changed_in_place_aga
     sd[0] = np.nan  # changed in place after a valid call
     with pytest.raises(ValueError):
         pf_slam.step(jax.random.PRNGKey(1), state, config, mutable, STILL, _det([(1, 0)]))
-    ps_config = ps_slam.PSSLAMConfig(num_particles=config.num_particles, num_tag_particles=4, max_tags=10, lag=2)
+    ps_config = ps_slam.PSSLAMConfig(num_particles=config.num_particles, num_tag_particles=4, max_tags=8, lag=2)
     with pytest.raises(ValueError, match="PSSLAMParams"):
         ps_slam.init(jax.random.PRNGKey(0), ps_config, params, np.zeros(3))
 
@@ -392,7 +401,11 @@ def test_parallel_slots_filter_like_all_slots(module, lanes):
 def test_parallel_slots_keep_the_derivatives_of_all_slots():
     """Reverse and forward derivatives of the log-likelihood through ``run`` (w.r.t. the reader model's
     log β and the motion noise) are those of ``parallel_slots=None``: the compacted step's overflow is a
-    loop that reverse mode cannot differentiate, so its derivatives come from the all-slot update."""
+    loop that reverse mode cannot differentiate, so its derivatives come from the all-slot update.
+
+    Per module, one jitted program: the reverse derivative of ``parallel_slots=None`` (``jax.grad``), and
+    of ``parallel_slots=2`` one linearisation (``jax.linearize``) evaluated forward (the JVP) and
+    transposed (the VJP: ``jax.grad`` is this linearisation transposed), which share its primal pass."""
     controls, det = _slot_sequence()
 
     motion_sd = (0.3, 0.3, 0.2)  # 30 mm per step against 60 mm footprints: particles leave them
@@ -407,13 +420,18 @@ def test_parallel_slots_keep_the_derivatives_of_all_slots():
 
         return f
 
-    args = (jnp.asarray(np.log(0.05), jnp.float32), jnp.asarray(motion_sd, jnp.float32))
-    for module in (pf_slam, ps_slam):
+    @functools.partial(jax.jit, static_argnums=0)
+    def derivatives(module, args, tangent):
         want = jax.grad(loglik(module, None), argnums=(0, 1))(*args)
-        got = jax.grad(loglik(module, 2), argnums=(0, 1))(*args)
+        value, linear = jax.linearize(loglik(module, 2), *args)
+        got = jax.linear_transpose(linear, *args)(jnp.ones_like(value))
+        return want, got, linear(*tangent)
+
+    args = (jnp.asarray(np.log(0.05), jnp.float32), jnp.asarray(motion_sd, jnp.float32))
+    tangent = (jnp.ones_like(args[0]), jnp.zeros_like(args[1]))
+    for module in (pf_slam, ps_slam):
+        want, got, jvp_got = derivatives(module, args, tangent)
         assert np.all(np.isfinite(np.asarray(want[1]))) and abs(float(want[0])) > 0 and np.any(np.asarray(want[1]) != 0)
         for a, b in zip(got, want):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
-        tangent = (jnp.ones_like(args[0]), jnp.zeros_like(args[1]))
-        _, jvp_got = jax.jvp(loglik(module, 2), args, tangent)
         np.testing.assert_allclose(jvp_got, want[0], rtol=1e-4)

@@ -628,7 +628,8 @@ def simulate(
     if controls.shape[0] < 1:
         raise ValueError("controls must hold at least one step")
     check_magnitude("controls", controls)
-    if is_concrete(controls) and not np.all(np.asarray(controls[:, 3]) > 0):
+    # np.asarray first: inside a caller's jit, even a concrete array's slice is traced
+    if is_concrete(controls) and not np.all(np.asarray(controls)[:, 3] > 0):
         raise ValueError("controls[:, 3] (Δt) must be > 0 s")
     start_pose = jnp.asarray(start_pose)
     check_shape("start_pose", start_pose, (3,))

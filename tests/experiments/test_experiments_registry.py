@@ -44,7 +44,8 @@ def test_cells_have_unique_ids_and_valid_settings(name, quick):
 )
 def test_compiler_options_default_to_the_experiments_own(quick, given, expected, monkeypatch):
     """A full HF-RFID SLAM sweep compiles with LIGHT_COMPILE, a quick one with FAST_COMPILE,
-    and options passed by the caller win."""
+    and options passed by the caller win. A quick sweep evaluates its runs in a ``lax.map``, a full
+    one as the experiment says."""
     from jaxnav.experiments import sweep as sw
 
     seen = {}
@@ -57,6 +58,7 @@ def test_compiler_options_default_to_the_experiments_own(quick, given, expected,
     registry.run("table-3.1", 3, jax.random.PRNGKey(0), quick=quick, compiler_options=given)
     want = given if expected == "given" else getattr(sw, expected)
     assert seen["compiler_options"] == want
+    assert seen["batching"] == ("map" if quick else registry.get("table-3.1").batching) == ("map" if quick else "vmap")
     assert registry.get("fig-4.4").compiler_options == sw.LIGHT_COMPILE
     assert registry.get("fig-5.3").compiler_options is None  # the UHF experiments keep XLA's defaults
 

@@ -446,6 +446,10 @@ def test_vmapped_runs_have_the_configured_odometry_noise(getkey, world):
     np.testing.assert_allclose(batch.odometry[2], one.odometry, rtol=1e-6, atol=1e-7)
     np.testing.assert_array_equal(batch.detections.ids[2], one.detections.ids)
     assert float(jnp.max(jnp.abs(batch.odometry[0] - batch.odometry[1]))) > 0
+    # inside a caller's jit, with the controls closed over (concrete, their slices traced): the same runs
+    jitted = jax.jit(jax.vmap(lambda k: tc.simulate(k, c, r, start, jnp.asarray(u), jnp.asarray(sd))))(keys)
+    np.testing.assert_allclose(jitted.odometry, batch.odometry, rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(jitted.detections.ids, batch.detections.ids)
     # negative control: σ = 0 gives the controls exactly
     clean = tc.simulate(getkey(), c, r, start, u, jnp.zeros(3))
     np.testing.assert_array_equal(clean.odometry, u)

@@ -517,7 +517,7 @@ def _cmd_hf_slam(args: argparse.Namespace) -> int:
         f"{args.reader_mm:g} mm readers, {setting.trajectory} trajectory, {setting.robot_particles} robot particles, seed {args.seed}"
     )
     _compiling("compiling the simulation and the filter (first call)…")
-    errors, world, result = xp.run_once(jax.random.PRNGKey(args.seed), args.method, setting)
+    errors, world, result = xp.run_once_compiled(jax.random.PRNGKey(args.seed), args.method, setting)
     run = world.run
     steps = run.odometry.shape[0]
     detections = int(np.asarray(run.detections.mask).sum())

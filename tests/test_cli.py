@@ -262,7 +262,7 @@ def fake_runs(monkeypatch, tmp_path):
         (uwb_xp, "run_study", lambda algorithms, **kwargs: (uwb_seq, [])),
         (uwb_xp, "plot_study", draw),
         (uwb_xp, "format_table", text),
-        (hf_slam, "run_once", lambda key, method, setting: (None, hf_world, hf_result)),
+        (hf_slam, "run_once_compiled", lambda key, method, setting: (None, hf_world, hf_result)),
         (hf_slam, "dead_reckoning", lambda run: steps),
         (hf_slam, "format_errors", text),
         (hf_slam, "plot_run", draw),

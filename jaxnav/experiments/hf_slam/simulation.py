@@ -532,7 +532,7 @@ def run_once_compiled(key: jax.Array, method: str, setting: HFSetting) -> tuple[
 
     Called op by op instead, :func:`run_once` dispatches (and the first time compiles) each of the
     simulation's many small operations on its own: the whole ``jaxnav hf-slam`` command with its
-    default run takes 9.2 s so against 11.8 s op by op (medians of four, 2 CPU cores).
+    default run takes 9.2 s against 11.8 s op by op (medians of four, 2 CPU cores).
     """
     check_key(key)
     return _run_once_program(key, method, setting)

@@ -416,8 +416,8 @@ def drive_once(key: jax.Array, setting: IRSetting) -> Drive:
     """Simulate one drive of ``setting``, filter it, and score the filter and the odometry.
 
     The same keys as :func:`run_once` (so its errors are those of that run). The simulation, the
-    filter and the scores are one compiled program per particle count,
-    which drives of other settings of the same length reuse.
+    filter and the scores are one compiled program per particle count, which a drive of another
+    setting reuses when its inputs have the same shapes (as many steps and emitters).
     """
     check_key(key)
     inputs = drive_inputs(setting)
